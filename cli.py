@@ -1,0 +1,224 @@
+"""The command line shared by eval.py and ikpd.py: one episode to watch or record, or a seed
+range to write rollout files. Both scripts run every controller through the same code path."""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import tyro
+
+
+@dataclass
+class Args:
+    seed: int | None = None
+    """Trajectory seed of a single episode (default: a random one)."""
+    seeds: str | None = None
+    """Seed range such as 0-99 or 0-4,10: write one rollout file per seed under --prefix."""
+    prefix: str = "eval"
+    """Rollout set name: files go to <rollouts-dir>/<prefix>/seed_NNNN.npz."""
+    controller: Literal["policy", "classical", "analytic"] = "policy"
+    """Which lead: a trained policy, none (classical), or v*tau + a*tau^2/2 (analytic)."""
+    model: Path | None = None
+    """Policy zip with its sidecar (default: the newest in archive/)."""
+    tau: float | None = None
+    """Look-ahead of the analytic lead in seconds (default: the tuned value)."""
+    shape: str | None = None
+    """Force the trajectory shape (circle, fig8, fly) instead of drawing it from the seed."""
+    duration: float = 5.0
+    """Episode length in seconds."""
+    video: Path | None = None
+    """Render the single episode offscreen to this MP4 instead of opening the viewer."""
+    compare: bool = False
+    """With --video: classical (left) and the policy (right) side by side on the same seed."""
+    stochastic: bool = False
+    """Sample policy actions instead of taking the mean."""
+    env_kwargs: str = "{}"
+    """JSON env arguments applied over the model's (e.g. '{"obs_noise": {"target_vel": 0.05}}')."""
+    rollouts_dir: Path = Path("rollouts")
+    """Root folder of rollout sets."""
+    tune_tau: bool = False
+    """Grid-search the analytic lead's tau on the tuning seeds (never the test seeds)."""
+
+
+class UserError(ValueError):
+    pass
+
+
+def _validate(args: Args):
+    import json
+
+    import trajectory
+    from seeds import parse_seed_range
+
+    seeds = parse_seed_range(args.seeds) if args.seeds is not None else None
+    if args.seed is not None and args.seed < 0:
+        raise UserError(f"--seed must be a non-negative integer, got {args.seed}")
+    if args.shape is not None and args.shape not in trajectory.SHAPES:
+        trajectory.sample(0, args.shape)  # raises the "did you mean" error
+    if not (args.duration > 0):
+        raise UserError(f"--duration must be positive, got {args.duration}")
+    if args.compare and args.video is None:
+        raise UserError("--compare renders a video: add --video out.mp4")
+    try:
+        overrides = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as exc:
+        raise UserError(f"--env-kwargs is not valid JSON: {exc}") from None
+    return seeds, overrides
+
+
+def _build(args: Args, overrides: dict):
+    """-> (env, act_fn, meta) for the chosen controller; a policy's env comes from its sidecar."""
+    import controllers
+    import env as env_mod
+    from models import load_policy, newest_archived
+
+    steps = int(round(args.duration * 100))
+    meta = {"controller": args.controller, "model": None}
+    env_kwargs: dict = {}
+    act = controllers.classical
+    model = None
+    if args.controller == "policy" or args.compare:
+        path = args.model or newest_archived()
+        if path is None:
+            raise UserError("no --model given and archive/ has no model; train one with "
+                            "`uv run train.py --archive NAME` or use --controller classical")
+        model, env_kwargs, _ = load_policy(path)
+        meta["model"] = str(path)
+    if args.controller == "policy":
+        act = controllers.make_policy(model, deterministic=not args.stochastic)
+    elif args.controller == "analytic":
+        tau = controllers.DEFAULT_TAU if args.tau is None else args.tau
+        act = controllers.make_analytic(tau)
+        meta["tau"] = tau
+    kwargs = {**env_kwargs, **overrides, "episode_steps": steps}
+    render = "rgb_array" if args.video else None
+    env = env_mod.PandaLeadEnv(**kwargs, render_mode=render)
+    return env, act, meta, model
+
+
+def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
+    from rollout import record, rollout_path, save
+
+    env, act, meta, _ = _build(args, overrides)
+    for seed in seeds:
+        r = record(env, act, seed, args.shape, meta)
+        save(r, rollout_path(args.prefix, seed, args.rollouts_dir))
+        note = f"  FAILED: {r.meta['failure']}" if r.meta.get("failure") else ""
+        print(f"seed {seed:4d} {r.shape:6s} mean error {100 * r.error.mean():6.2f} cm{note}")
+    print(f"wrote {len(seeds)} rollouts to {args.rollouts_dir / args.prefix}/")
+
+
+def _label(frame: np.ndarray, text: str) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    img = Image.fromarray(frame)
+    ImageDraw.Draw(img).text((12, 10), text, fill=(255, 255, 255))
+    return np.asarray(img)
+
+
+def write_video(args: Args, seed: int, overrides: dict) -> None:
+    import imageio.v2 as imageio
+
+    import controllers
+    from rollout import record
+
+    env, act, meta, model = _build(args, overrides)
+    every = 2  # 100 Hz control -> 50 fps video
+
+    def episode(act_fn, label):
+        frames = []
+
+        def grab(e):
+            if e.core.step_count % every == 0:
+                frames.append(_label(e.render(), label))
+
+        r = record(env, act_fn, seed, args.shape, on_step=grab)
+        return frames, r
+
+    if args.compare:
+        left, ra = episode(controllers.classical, "Classical IK+PD")
+        right, rb = episode(act, f"RL lead ({Path(meta['model']).stem})")
+        frames = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=False)]
+        summary = (f"classical {100 * ra.error.mean():.2f} cm, "
+                   f"policy {100 * rb.error.mean():.2f} cm")
+    else:
+        frames, r = episode(act, f"{args.controller} seed {seed}")
+        summary = f"{args.controller} {100 * r.error.mean():.2f} cm"
+    out = Path(args.video)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".mp4", dir=out.parent)
+    os.close(fd)
+    try:
+        imageio.mimwrite(tmp, frames, fps=100 // every, macro_block_size=1)
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    env.close()
+    print(f"seed {seed} ({env.traj.shape}): mean error {summary}; wrote {out}")
+
+
+def watch(args: Args, seed: int, overrides: dict) -> None:
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise UserError("no display for the viewer: record instead with --video out.mp4, or "
+                        "write rollout files with --seeds 0-9 --prefix NAME")
+    import time
+
+    import mujoco.viewer
+
+    env, act, _, _ = _build(args, overrides)
+    obs, _ = env.reset(seed=seed, options={"traj_seed": seed, **(
+        {"shape": args.shape} if args.shape else {})})
+    with mujoco.viewer.launch_passive(env.core.model, env.core.data) as viewer:
+        done = False
+        while viewer.is_running() and not done:
+            start = time.perf_counter()
+            obs, _, term, trunc, info = env.step(act(obs, env))
+            done = term or trunc
+            viewer.sync()
+            time.sleep(max(0.0, env.dt - (time.perf_counter() - start)))
+
+
+def tune_tau(args: Args, overrides: dict) -> None:
+    import controllers
+    import env as env_mod
+    from rollout import record
+    from seeds import TUNE_SEEDS
+
+    env = env_mod.PandaLeadEnv(**overrides, episode_steps=int(round(args.duration * 100)))
+    print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")
+    best = None
+    for tau in np.round(np.arange(0.0, 0.161, 0.02), 3):
+        act = controllers.make_analytic(float(tau))
+        err = np.mean([record(env, act, s).error.mean() for s in TUNE_SEEDS]) * 100
+        print(f"tau {tau:.2f} s: mean error {err:.2f} cm")
+        if best is None or err < best[1]:
+            best = (float(tau), err)
+    print(f"best tau {best[0]:.2f} s ({best[1]:.2f} cm)")
+
+
+def run_controller_cli(default_controller: str, default_prefix: str, argv, prog: str) -> None:
+    defaults = Args(controller=default_controller, prefix=default_prefix)
+    args = tyro.cli(Args, args=argv, default=defaults, prog=prog)
+    try:
+        seeds, overrides = _validate(args)
+        if args.tune_tau:
+            tune_tau(args, overrides)
+        elif seeds is not None:
+            write_rollouts(args, seeds, overrides)
+        else:
+            seed = args.seed if args.seed is not None else int(np.random.default_rng().integers(
+                0, 2**31 - 1))
+            if args.video:
+                write_video(args, seed, overrides)
+            else:
+                watch(args, seed, overrides)
+    except ValueError as exc:  # UserError, ModelError, bad seeds/shapes: one line, no traceback
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None

@@ -1,0 +1,175 @@
+"""Rollout files: one episode of one controller on one seed, as a compressed .npz.
+
+Layout on disk: ``rollouts/<prefix>/seed_<NNNN>.npz``. Arrays, one row per control step (T rows):
+
+| key             | shape  | unit   | meaning                                                  |
+|-----------------|--------|--------|----------------------------------------------------------|
+| t               | (T,)   | s      | time at the end of the control step                      |
+| ee_pos          | (T, 3) | m      | tip-site position, world frame                           |
+| target_pos      | (T, 3) | m      | target position at time t                                |
+| target_vel      | (T, 3) | m/s    | target velocity (analytic)                               |
+| target_acc      | (T, 3) | m/s^2  | target acceleration (analytic)                           |
+| lead            | (T, 3) | m      | Cartesian lead added to the IK target during this step   |
+| qpos            | (T, 7) | rad    | arm joint positions                                      |
+| qvel            | (T, 7) | rad/s  | arm joint velocities                                     |
+| self_collision  | (T,)   | bool   | two non-adjacent arm links touch                         |
+| collision_depth | (T,)   | m      | deepest self-collision penetration (0 when none)         |
+| reachable       | (T,)   | bool   | the target lies inside the arm's reachable workspace     |
+| meta            | ()     | str    | JSON: seed, shape, controller, model, duration, dt, env  |
+
+Files are written atomically (temporary name, then ``os.replace``): an interrupted write never
+leaves a half file that a later command would trust.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROLLOUT_DIR = Path("rollouts")
+ARRAY_KEYS = (
+    "t", "ee_pos", "target_pos", "target_vel", "target_acc", "lead",
+    "qpos", "qvel", "self_collision", "collision_depth", "reachable",
+)
+
+
+@dataclass
+class Rollout:
+    t: np.ndarray
+    ee_pos: np.ndarray
+    target_pos: np.ndarray
+    target_vel: np.ndarray
+    target_acc: np.ndarray
+    lead: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    self_collision: np.ndarray
+    collision_depth: np.ndarray
+    reachable: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def seed(self) -> int:
+        return int(self.meta["seed"])
+
+    @property
+    def shape(self) -> str:
+        return str(self.meta.get("shape", "?"))
+
+    @property
+    def dt(self) -> float:
+        return float(self.meta.get("dt", self.t[1] - self.t[0] if len(self.t) > 1 else 0.01))
+
+    @property
+    def duration(self) -> float:
+        return float(self.meta.get("duration", len(self.t) * self.dt))
+
+    @property
+    def error(self) -> np.ndarray:
+        """Tracking error per step, metres: |ee - target|."""
+        return np.linalg.norm(self.ee_pos - self.target_pos, axis=1)
+
+
+def rollout_path(prefix: str, seed: int, root: Path = ROLLOUT_DIR) -> Path:
+    return Path(root) / prefix / f"seed_{seed:04d}.npz"
+
+
+def save(rollout: Rollout, path: Path) -> Path:
+    """Write atomically: a temporary file in the same folder, then rename over the target."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {k: np.asarray(getattr(rollout, k)) for k in ARRAY_KEYS}
+    arrays["meta"] = np.array(json.dumps(rollout.meta, sort_keys=True))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez_compressed(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load(path: Path) -> Rollout:
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in (*ARRAY_KEYS, "meta") if k not in data.files]
+            if missing:
+                raise ValueError(f"{path}: not a rollout file, missing {', '.join(missing)}")
+            fields = {k: data[k] for k in ARRAY_KEYS}
+            meta = json.loads(str(data["meta"]))
+    except (OSError, EOFError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read rollout ({exc})") from exc
+    return Rollout(**fields, meta=meta)
+
+
+def list_prefixes(root: Path = ROLLOUT_DIR) -> list[str]:
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and any(p.glob("seed_*.npz")))
+
+
+def load_prefix(prefix: str, root: Path = ROLLOUT_DIR) -> dict[int, Rollout]:
+    """All rollouts under a prefix, keyed by seed. A missing or empty prefix is a clear error."""
+    folder = Path(root) / prefix
+    files = sorted(folder.glob("seed_*.npz")) if folder.is_dir() else []
+    if not files:
+        existing = list_prefixes(root)
+        hint = ", ".join(existing) if existing else "none (run ikpd.py or eval.py with --prefix)"
+        raise FileNotFoundError(f"no rollouts under {folder}/; prefixes that exist: {hint}")
+    rollouts = [load(f) for f in files]
+    return {r.seed: r for r in rollouts}
+
+
+def record(env, act_fn, traj_seed: int, shape: str | None = None, meta: dict | None = None,
+           on_step=None) -> Rollout:
+    """Run one episode of a PandaLeadEnv and record it: the one code path every controller uses.
+
+    ``act_fn(obs, env) -> action`` decides each step (zeros for the classical controller).
+    ``env`` is the unwrapped env; ``on_step(env)`` is called after each step (for rendering).
+    """
+    options = {"traj_seed": int(traj_seed)}
+    if shape is not None:
+        options["shape"] = shape
+    obs, info = env.reset(seed=int(traj_seed), options=options)
+    core = env.core
+    rows: dict[str, list] = {k: [] for k in ARRAY_KEYS}
+    failure = None
+    episode_return = 0.0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(act_fn(obs, env))
+        pos, vel, acc = core.target()
+        episode_return += float(reward)
+        rows["t"].append(core.time)
+        rows["ee_pos"].append(core.tip_pos.copy())
+        rows["target_pos"].append(pos)
+        rows["target_vel"].append(vel)
+        rows["target_acc"].append(acc)
+        rows["lead"].append(info["lead"])
+        rows["qpos"].append(core.qpos.copy())
+        rows["qvel"].append(core.qvel.copy())
+        rows["self_collision"].append(info["self_collision"])
+        rows["collision_depth"].append(info["collision_depth"])
+        rows["reachable"].append(info["reachable"])
+        if on_step is not None:
+            on_step(env)
+        if terminated or truncated:
+            failure = info.get("failure")
+            break
+    arrays = {k: np.asarray(v) for k, v in rows.items()}
+    arrays["self_collision"] = arrays["self_collision"].astype(bool)
+    arrays["reachable"] = arrays["reachable"].astype(bool)
+    full_meta = {
+        "seed": int(traj_seed), "shape": env.traj.shape, "dt": env.dt,
+        "duration": round(env.config["episode_steps"] * env.dt, 6),
+        "env": env.config, "failure": failure, "return": episode_return, **(meta or {}),
+    }
+    return Rollout(**arrays, meta=full_meta)

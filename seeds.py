@@ -1,0 +1,51 @@
+"""The seed sets. Reported results use TEST only; nothing is ever tuned or selected on it.
+
+| set    | seeds                       | shape                  | used by                              |
+|--------|-----------------------------|------------------------|--------------------------------------|
+| test   | 0..99                       | drawn from the seed    | README results (ikpd.py, eval.py)    |
+| eval   | 900000..900014              | 5 per shape, forced    | evaluation during training, sweeps   |
+| tune   | 800000..800049              | drawn from the seed    | tuning the analytic lead's tau       |
+| train  | 10^7 .. 2^31-1, env's rng   | drawn (or restricted)  | training episodes                    |
+"""
+
+from __future__ import annotations
+
+TEST_SEEDS = tuple(range(0, 100))
+EVAL_SHAPES = ("circle", "fig8", "fly")
+EVAL_SEEDS_PER_SHAPE = 5
+# (seed, forced shape): 900000-900004 circles, 900005-900009 figure-eights, 900010-900014 fly.
+EVAL_SET = tuple(
+    (900_000 + i * EVAL_SEEDS_PER_SHAPE + j, shape)
+    for i, shape in enumerate(EVAL_SHAPES)
+    for j in range(EVAL_SEEDS_PER_SHAPE)
+)
+TUNE_SEEDS = tuple(range(800_000, 800_050))
+TRAIN_SEED_LOW, TRAIN_SEED_HIGH = 10_000_000, 2**31 - 1
+
+
+def parse_seed_range(text: str) -> list[int]:
+    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work. Bad ranges raise ValueError."""
+    seeds: list[int] = []
+    text = str(text).strip()
+    if not text:
+        raise ValueError("empty seed range; use N, A-B or a comma list such as 0-9,20")
+    for part in text.split(","):
+        part = part.strip()
+        lo_s, sep, hi_s = part.partition("-")
+        try:
+            if not sep:
+                lo = hi = int(part)
+            else:
+                if not lo_s or not hi_s:
+                    raise ValueError
+                lo, hi = int(lo_s), int(hi_s)
+        except ValueError:
+            raise ValueError(
+                f"malformed seed range {part!r}; use N, A-B (e.g. 0-99) or a comma list"
+            ) from None
+        if lo < 0:
+            raise ValueError(f"seed range {part!r}: seeds are non-negative integers")
+        if hi < lo:
+            raise ValueError(f"seed range {part!r} is empty: {hi} < {lo}")
+        seeds.extend(range(lo, hi + 1))
+    return seeds
