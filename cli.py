@@ -54,6 +54,7 @@ def _validate(args: Args):
     import json
 
     import trajectory
+
     from seeds import parse_seed_range
 
     seeds = parse_seed_range(args.seeds) if args.seeds is not None else None
@@ -194,7 +195,7 @@ def tune_tau(args: Args, overrides: dict) -> None:
     env = env_mod.PandaLeadEnv(**overrides, episode_steps=int(round(args.duration * 100)))
     print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")
     best = None
-    for tau in np.round(np.arange(0.0, 0.161, 0.02), 3):
+    for tau in np.round(np.arange(0.0, 0.1001, 0.01), 3):
         act = controllers.make_analytic(float(tau))
         err = np.mean([record(env, act, s).error.mean() for s in TUNE_SEEDS]) * 100
         print(f"tau {tau:.2f} s: mean error {err:.2f} cm")

@@ -13,7 +13,7 @@ from ikpd import analytic_lead
 
 CONTROLLERS = ("classical", "analytic", "policy")
 # Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run ikpd.py --tune-tau`; see README.
-DEFAULT_TAU = 0.06
+DEFAULT_TAU = 0.04
 
 _ZERO = np.zeros(3, dtype=np.float32)
 

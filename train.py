@@ -54,8 +54,11 @@ class Args:
     """Torch device (a 64x64 MLP runs fastest on the CPU)."""
     env_kwargs: str = "{}"
     """JSON of env constructor arguments, applied over the preset's, e.g. '{"max_lead": 0.1}'."""
-    vec_env: Literal["subproc", "dummy"] = "subproc"
-    """SubprocVecEnv (one process per env) or DummyVecEnv (all in this process)."""
+    vec_env: Literal["subproc", "batched", "dummy"] = "subproc"
+    """subproc: SB3 SubprocVecEnv (a process per env); batched: --n-workers processes each
+    stepping a batch of envs (vecenv.py); dummy: all envs in this process."""
+    n_workers: int = 0
+    """Worker processes for --vec-env batched (0: one per CPU core, at most n_envs)."""
     eval_freq: int = 50_000
     """Evaluate on the fixed evaluation set every this many total steps (0: never)."""
     eval_steps: int = 500
@@ -99,7 +102,8 @@ def resolve_config(args: Args) -> dict:
     timesteps = args.timesteps or preset.get("timesteps", 5_000_000)
     return dict(preset=args.preset, env=env_kwargs, ppo=ppo, net_arch=list(args.net_arch),
                 timesteps=int(timesteps), n_envs=args.n_envs, seed=args.seed, device=args.device,
-                vec_env=args.vec_env, eval_freq=args.eval_freq, eval_steps=args.eval_steps,
+                vec_env=args.vec_env, n_workers=args.n_workers, eval_freq=args.eval_freq,
+                eval_steps=args.eval_steps,
                 checkpoint_freq=args.checkpoint_freq, **args.extra)
 
 
@@ -111,9 +115,20 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def make_vec_env(env_kwargs: dict, n_envs: int, seed: int, kind: str = "subproc"):
+def make_vec_env(env_kwargs: dict, n_envs: int, seed: int, kind: str = "subproc",
+                 n_workers: int = 0):
+    import os
+
     import gymnasium as gym
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+
+    if kind == "batched":
+        from vecenv import BatchedSubprocVecEnv
+
+        workers = min(n_envs, n_workers or os.cpu_count() or 1)
+        vec = BatchedSubprocVecEnv(env_kwargs, n_envs, workers)
+        vec.seed(seed)
+        return VecMonitor(vec)
 
     def make(rank: int):
         def thunk():
@@ -268,7 +283,8 @@ def train(args: Args) -> Path:
         (run_dir / "command.txt").write_text(shlex.join([sys.executable, *sys.argv]) + "\n")
 
     seed_everything(config["seed"])
-    vec = make_vec_env(config["env"], config["n_envs"], config["seed"], config["vec_env"])
+    vec = make_vec_env(config["env"], config["n_envs"], config["seed"], config["vec_env"],
+                       config.get("n_workers", 0))
     logger = configure(str(run_dir / "tb"), ["tensorboard", "csv"])
     ckpt = newest_checkpoint(run_dir) if args.resume else None
     if args.resume and ckpt is None:

@@ -1,0 +1,158 @@
+"""PandaLead-v0: API checks, zero action == classical, reward bookkeeping, determinism."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import trajectory
+
+import env as env_mod
+from ikpd import ArmCore
+from rollout import record
+
+
+def test_registered_and_passes_gymnasium_and_sb3_checkers():
+    from gymnasium.utils.env_checker import check_env as gym_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    e = gym.make("PandaLead-v0", episode_steps=20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any checker warning fails the test, except:
+        # Gymnasium's own MuJoCo envs use unbounded observation boxes too; not a defect.
+        warnings.filterwarnings("ignore", message=".*observation space (min|max)imum value")
+        gym_check(e.unwrapped, skip_render_check=True)
+        sb3_check(e.unwrapped, warn=True)
+    assert e.unwrapped.metadata["render_fps"] == 100
+    assert e.action_space.dtype == np.float32 and e.action_space.shape == (3,)
+
+
+def test_zero_action_reproduces_the_classical_core_exactly():
+    seed, steps = 11, 150
+    e = env_mod.PandaLeadEnv(episode_steps=steps)
+    e.reset(seed=0, options={"traj_seed": seed})
+    core = ArmCore()
+    core.reset(trajectory.sample(seed), steps)
+    for _ in range(steps):
+        e.step(np.zeros(3, dtype=np.float32))
+        core.step()  # no lead at all
+        assert np.array_equal(e.core.data.qpos, core.data.qpos)
+        assert np.array_equal(e.core.tip_pos, core.tip_pos)
+
+
+def test_reward_terms_add_up_and_are_weighted():
+    kw = dict(w_distance=1.3, w_tracking=0.7, tracking_scale=0.04, w_action=0.2,
+              w_action_change=0.1, w_collision=50.0, w_alive=0.05, w_termination=3.0)
+    e = env_mod.PandaLeadEnv(episode_steps=60, **kw)
+    e.reset(seed=3, options={"traj_seed": 5})
+    rng = np.random.default_rng(0)
+    prev = np.zeros(3)
+    for _ in range(60):
+        a = rng.uniform(-1, 1, 3).astype(np.float32)
+        _, reward, term, trunc, info = e.step(a)
+        terms = info["reward_terms"]
+        assert set(terms) == set(env_mod.REWARD_TERMS)
+        assert reward == pytest.approx(sum(terms.values()), abs=1e-12)
+        d = info["distance"]
+        assert terms["distance"] == pytest.approx(-1.3 * d)
+        assert terms["tracking"] == pytest.approx(0.7 * np.exp(-d / 0.04))
+        assert terms["action"] == pytest.approx(-0.2 * float(a.astype(float) @ a.astype(float)))
+        da = a.astype(float) - prev
+        assert terms["action_change"] == pytest.approx(-0.1 * float(da @ da))
+        assert terms["alive"] == pytest.approx(0.05)
+        prev = a.astype(float)
+        if term or trunc:
+            break
+    assert trunc and not term
+
+
+def test_observation_layout_follows_the_feature_order():
+    e = env_mod.PandaLeadEnv(obs_features=("target_acc", "ee_pos", "prev_action"))
+    assert [f for f, _, _ in e._layout] == ["ee_pos", "target_acc", "prev_action"]
+    obs, _ = e.reset(seed=0, options={"traj_seed": 2})
+    assert obs.shape == (9,) and obs.dtype == np.float32
+    np.testing.assert_allclose(obs[0:3], e.core.tip_pos, atol=1e-6)
+    obs, *_ = e.step(np.array([0.5, -0.5, 1.0], dtype=np.float32))
+    np.testing.assert_allclose(obs[6:9], [0.5, -0.5, 1.0])
+    _, _, acc = e.core.target()
+    np.testing.assert_allclose(obs[3:6], acc, rtol=1e-6)
+
+
+def test_lead_is_scaled_and_clipped():
+    e = env_mod.PandaLeadEnv(max_lead=0.1)
+    e.reset(seed=0, options={"traj_seed": 1})
+    *_, info = e.step(np.array([2.0, -0.5, 0.0], dtype=np.float32))
+    np.testing.assert_allclose(info["lead"], [0.1, -0.05, 0.0])
+
+
+def test_bad_inputs_raise_clear_errors():
+    with pytest.raises(ValueError, match="did you mean 'target_acc'"):
+        env_mod.PandaLeadEnv(obs_features=("target_ac",))
+    with pytest.raises(ValueError, match="did you mean 'circle'"):
+        env_mod.PandaLeadEnv(shapes=("circel",))
+    e = env_mod.PandaLeadEnv()
+    e.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        e.step(np.array([np.nan, 0, 0], dtype=np.float32))
+
+
+def test_same_seed_same_episode_and_reset_restores_everything():
+    e = env_mod.PandaLeadEnv(episode_steps=80, obs_features=env_mod.OBS_FEATURES,
+                             obs_noise={"ee_pos": 0.01})
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (80, 3)).astype(np.float32)
+
+    def run():
+        obs, _ = e.reset(seed=123)
+        out = [obs]
+        for a in actions:
+            obs, *_ = e.step(a)
+            out.append(obs)
+        return np.array(out)
+
+    first = run()
+    # Disturb every piece of state, then rerun: the reset must restore all of it.
+    e.reset(seed=999)
+    for a in actions[:30]:
+        e.step(-a)
+    np.testing.assert_array_equal(first, run())
+
+
+def test_training_shapes_are_respected():
+    e = env_mod.PandaLeadEnv(shapes=("circle",))
+    e.reset(seed=0)
+    shapes = set()
+    for _ in range(10):
+        _, info = e.reset()
+        shapes.add(info["shape"])
+    assert shapes == {"circle"}
+
+
+def test_terminates_on_self_collision_only_when_asked():
+    def fold(e):
+        # Drive the IK target into the arm's own body: tip at the shoulder.
+        hit = None
+        for _ in range(200):
+            lead = (np.array([0.0, 0.0, 0.35]) - e.core.target()[0]) / e.max_lead
+            _, r, term, trunc, info = e.step(np.clip(lead, -1, 1).astype(np.float32))
+            if info["self_collision"] or term or trunc:
+                hit = (term, info)
+                break
+        return hit
+
+    on = env_mod.PandaLeadEnv(max_lead=1.0, terminate_on_collision=True, w_termination=5.0)
+    on.reset(seed=0, options={"traj_seed": 4})
+    hit = fold(on)
+    assert hit is not None, "the arm never folded into itself"
+    term, info = hit
+    assert term and info["failure"] == "self_collision"
+    assert info["reward_terms"]["termination"] == -5.0
+
+
+def test_record_writes_one_row_per_step():
+    e = env_mod.PandaLeadEnv(episode_steps=50)
+    r = record(e, lambda obs, env: np.zeros(3, np.float32), traj_seed=8)
+    assert len(r.t) == 50 and r.ee_pos.shape == (50, 3) and r.qpos.shape == (50, 7)
+    np.testing.assert_allclose(r.t, np.arange(1, 51) * 0.01)
+    assert r.meta["seed"] == 8 and r.meta["shape"] in trajectory.SHAPES
+    assert r.meta["duration"] == pytest.approx(0.5)
