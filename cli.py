@@ -54,7 +54,6 @@ def _validate(args: Args):
     import json
 
     import trajectory
-
     from seeds import parse_seed_range
 
     seeds = parse_seed_range(args.seeds) if args.seeds is not None else None

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from env import OBS_SCALE
 from ikpd import analytic_lead
 
 CONTROLLERS = ("classical", "analytic", "policy")
@@ -27,8 +28,11 @@ def make_analytic(tau: float = DEFAULT_TAU):
         env = env.unwrapped
         slices = {f: slice(a, b) for f, a, b in env._layout}
         _, true_vel, true_acc = env.core.target()
-        vel = obs[slices["target_vel"]] if "target_vel" in slices else true_vel
-        acc = obs[slices["target_acc"]] if "target_acc" in slices else true_acc
+        # The observation is scaled (env.OBS_SCALE); undo that to get m/s and m/s^2.
+        vel = obs[slices["target_vel"]] * OBS_SCALE["target_vel"] if "target_vel" in slices \
+            else true_vel
+        acc = obs[slices["target_acc"]] * OBS_SCALE["target_acc"] if "target_acc" in slices \
+            else true_acc
         lead = analytic_lead(np.asarray(vel, float), np.asarray(acc, float), tau, env.max_lead)
         return (lead / env.max_lead).astype(np.float32) if env.max_lead > 0 else _ZERO
 

@@ -10,9 +10,9 @@ import math
 
 import gymnasium as gym
 import numpy as np
-import trajectory
 from gymnasium import spaces
 
+import trajectory
 from ikpd import N_JOINTS, ArmCore, IKConfig, load_model, reachable
 from seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 
@@ -20,6 +20,13 @@ from seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 OBS_FEATURES = {
     "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
     "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3,
+}
+# Each feature is divided by a fixed scale so that every input of the policy is of order one
+# (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
+# statistics to save beside a model, unlike VecNormalize.
+OBS_SCALE = {
+    "ee_pos": 1.0, "ee_vel": 2.5, "target_pos": 1.0, "target_vel": 2.5, "target_acc": 30.0,
+    "joint_pos": 1.0, "joint_vel": 2.5, "prev_action": 1.0,
 }
 DEFAULT_OBS = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc")
 REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", "alive",
@@ -66,20 +73,22 @@ class PandaLeadEnv(gym.Env):
     ## Observation space
     ``Box(-inf, inf, (n,), float32)``: the selected features, always in this order:
 
-    | feature     | size | meaning (world frame)                                        |
-    |-------------|------|--------------------------------------------------------------|
-    | ee_pos      | 3    | tip position (m)                                             |
-    | ee_vel      | 3    | tip velocity, finite difference over one control step (m/s)  |
-    | target_pos  | 3    | target position (m)                                          |
-    | target_vel  | 3    | target velocity, analytic (m/s)                              |
-    | target_acc  | 3    | target acceleration, analytic (m/s^2)                        |
-    | joint_pos   | 7    | arm joint angles (rad)                                       |
-    | joint_vel   | 7    | arm joint velocities (rad/s)                                 |
-    | prev_action | 3    | the previous action, in [-1, 1]                              |
+    | feature     | size | meaning (world frame)                                | divided by |
+    |-------------|------|------------------------------------------------------|------------|
+    | ee_pos      | 3    | tip position (m)                                     | 1          |
+    | ee_vel      | 3    | tip velocity, finite difference over one step (m/s)  | 2.5        |
+    | target_pos  | 3    | target position (m)                                  | 1          |
+    | target_vel  | 3    | target velocity, analytic (m/s)                      | 2.5        |
+    | target_acc  | 3    | target acceleration, analytic (m/s^2)                | 30         |
+    | joint_pos   | 7    | arm joint angles (rad)                               | 1          |
+    | joint_vel   | 7    | arm joint velocities (rad/s)                         | 2.5        |
+    | prev_action | 3    | the previous action, in [-1, 1]                      | 1          |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
-    gives the index ranges. ``obs_noise`` adds Gaussian noise (std per feature) to what the
-    policy sees; the IK target itself is always the true target.
+    gives the index ranges. Each feature is divided by the fixed scale in the table (OBS_SCALE)
+    so that the policy's inputs are of order one. ``obs_noise`` adds Gaussian noise (std per
+    feature, in the feature's physical unit) to what the policy sees; the IK target itself is
+    always the true target.
 
     ## Reward
     A sum of weighted terms, each reported in ``info["reward_terms"]`` (they add up to the
@@ -174,10 +183,12 @@ class PandaLeadEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
         n_obs = self._layout[-1][2]
         self.observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), dtype=np.float32)
-        self._obs = np.zeros(n_obs, dtype=np.float32)
+        self._raw_obs = np.zeros(n_obs)
         self._noise_std = np.zeros(n_obs)
+        self._inv_scale = np.ones(n_obs)
         for f, a, b in self._layout:
             self._noise_std[a:b] = obs_noise.get(f, 0.0)
+            self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
         self._has_noise = bool(self._noise_std.any())
         self._renderer = None
         self.traj = None
@@ -274,12 +285,12 @@ class PandaLeadEnv(gym.Env):
             "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
             "joint_vel": core.qvel, "prev_action": self._prev_action,
         }
-        obs = self._obs
+        obs = self._raw_obs
         for f, a, b in self._layout:
             obs[a:b] = values[f]
         if self._has_noise:
-            obs += self.np_random.normal(0.0, self._noise_std).astype(np.float32)
-        return obs.copy()
+            obs += self.np_random.normal(0.0, self._noise_std)
+        return (obs * self._inv_scale).astype(np.float32)
 
     # --- helpers for baselines and rendering -----------------------------------------------
     @property

@@ -30,17 +30,17 @@ if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+import trajectory  # noqa: E402
+
 ASSETS = Path(__file__).resolve().parent / "assets"
 SCENE_XML = ASSETS / "scene.xml"
 N_JOINTS = 7
 HOME_QPOS = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 CONTROL_SUBSTEPS = 5  # 500 Hz physics, 100 Hz control
-# The reachable workspace of the tip (measured: max |tip - shoulder| over 20k random
-# configurations is 0.947 m). A target is reachable when it is inside the sphere with a 1 cm
-# margin, above the floor, and not inside the base column the arm cannot fold into.
-SHOULDER = np.array([0.0, 0.0, 0.333])
-REACH_RADIUS = 0.94
-FLOOR_MARGIN = 0.03
+# A target is reachable when it is inside the reach sphere and above the floor margin (the
+# geometry lives in trajectory.py, which samples against it; the sphere's radius is measured:
+# max |tip - shoulder| over 20k random configurations is 0.947 m) and not inside the base
+# column, which the tip cannot enter without the arm folding into itself.
 BASE_COLUMN_RADIUS, BASE_COLUMN_TOP = 0.12, 0.30
 
 
@@ -73,12 +73,10 @@ def load_model() -> mujoco.MjModel:
 def reachable(pos: np.ndarray) -> np.ndarray | bool:
     """Whether the tip can reach a position (or each row of an (N, 3) array)."""
     p = np.asarray(pos, dtype=float)
-    in_sphere = np.linalg.norm(p - SHOULDER, axis=-1) <= REACH_RADIUS - 0.01
-    above_floor = p[..., 2] >= FLOOR_MARGIN
     in_column = (np.linalg.norm(p[..., :2], axis=-1) < BASE_COLUMN_RADIUS) & (
         p[..., 2] < BASE_COLUMN_TOP
     )
-    ok = in_sphere & above_floor & ~in_column
+    ok = ~trajectory.out_of_reach(p) & ~in_column
     return bool(ok) if ok.ndim == 0 else ok
 
 
@@ -148,6 +146,7 @@ class ArmCore:
             self.target_path = tuple(np.array(a, dtype=float) for a in traj.at(times))
             d.mocap_pos[self._mocap] = self.target_path[0][0]
         mujoco.mj_forward(m, d)
+        self._kinematics_current = True
 
     @property
     def time(self) -> float:
@@ -177,13 +176,17 @@ class ArmCore:
     def ik(self, target: np.ndarray, q0: np.ndarray | None = None, iters: int | None = None
            ) -> np.ndarray:
         """DLS IK for the tip position, warm-started from q0 (default: the measured angles)."""
-        m, d, cfg = self.model, self._ik_data, self.ik_config
+        m, cfg = self.model, self.ik_config
         q = (self.data.qpos[:N_JOINTS] if q0 is None else q0).copy()
         jacp = self._jacp
-        for _ in range(cfg.iters if iters is None else iters):
-            d.qpos[:N_JOINTS] = q
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
+        for i in range(cfg.iters if iters is None else iters):
+            if i == 0 and q0 is None and self._kinematics_current:
+                d = self.data  # its kinematics are those of the measured q already
+            else:
+                d = self._ik_data
+                d.qpos[:N_JOINTS] = q
+                mujoco.mj_kinematics(m, d)
+                mujoco.mj_comPos(m, d)
             mujoco.mj_jacSite(m, d, jacp, None, self._tip)
             jac = jacp[:, :N_JOINTS]
             err = target - d.site_xpos[self._tip]
@@ -199,7 +202,7 @@ class ArmCore:
             if peak > cfg.max_step:
                 dq *= cfg.max_step / peak
             q += dq
-            np.clip(q, self._lo, self._hi, out=q)
+            np.minimum(np.maximum(q, self._lo, out=q), self._hi, out=q)
         return q
 
     def step(self, lead: np.ndarray | None = None) -> None:
@@ -213,6 +216,7 @@ class ArmCore:
         self.collision_depth = 0.0
         self.floor_contact = False
         warnings_before = d.warning[self._badqacc].number
+        self._kinematics_current = False
         for _ in range(self.substeps):
             mujoco.mj_step(m, d)
             if d.ncon:
@@ -225,7 +229,11 @@ class ArmCore:
         if d.warning[self._badqacc].number != warnings_before or not np.isfinite(d.qpos).all():
             self.unstable = True
         else:
-            mujoco.mj_kinematics(m, d)  # the tip position at the end of the step, not the start
+            # mj_step leaves positions of the substep's start: refresh them (and the COM
+            # quantities the next IK Jacobian needs) for the state the step ends in.
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            self._kinematics_current = True
 
     def _scan_contacts(self) -> None:
         con = self.data.contact

@@ -48,6 +48,8 @@ class Args:
     """Entropy bonus coefficient."""
     net_arch: tuple[int, ...] = (64, 64)
     """Hidden layer sizes of the policy and value MLPs."""
+    log_std_init: float = 0.0
+    """Initial log standard deviation of the Gaussian policy (SB3 default 0: std 1)."""
     seed: int = 42
     """Seeds Python, numpy, torch and the environments."""
     device: str = "cpu"
@@ -101,6 +103,7 @@ def resolve_config(args: Args) -> dict:
             ppo[k] = v
     timesteps = args.timesteps or preset.get("timesteps", 5_000_000)
     return dict(preset=args.preset, env=env_kwargs, ppo=ppo, net_arch=list(args.net_arch),
+                log_std_init=args.log_std_init,
                 timesteps=int(timesteps), n_envs=args.n_envs, seed=args.seed, device=args.device,
                 vec_env=args.vec_env, n_workers=args.n_workers, eval_freq=args.eval_freq,
                 eval_steps=args.eval_steps,
@@ -173,7 +176,7 @@ def evaluate(act_fn, env_kwargs: dict, steps: int, episodes=EVAL_SET) -> dict:
 def _callbacks(run_dir: Path, config: dict, n_envs: int):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-    from controllers import classical, make_policy
+    from controllers import classical, make_analytic, make_policy
     from models import save_model
 
     class TrackingEval(BaseCallback):
@@ -189,6 +192,8 @@ def _callbacks(run_dir: Path, config: dict, n_envs: int):
             base = evaluate(classical, config["env"], config["eval_steps"])
             for k, v in base.items():
                 self.logger.record(f"eval_classical/{k}", v)
+            for k, v in evaluate(make_analytic(), config["env"], config["eval_steps"]).items():
+                self.logger.record(f"eval_analytic/{k}", v)
             self.baseline = base
             best_file = run_dir / "best.json"
             if best_file.is_file():  # resuming: keep the best so far
@@ -296,7 +301,8 @@ def train(args: Args) -> Path:
         import torch
 
         model = PPO("MlpPolicy", vec, seed=config["seed"], device=config["device"], verbose=0,
-                    policy_kwargs=dict(net_arch=config["net_arch"], activation_fn=torch.nn.Tanh),
+                    policy_kwargs=dict(net_arch=config["net_arch"], activation_fn=torch.nn.Tanh,
+                                       log_std_init=config.get("log_std_init", 0.0)),
                     **config["ppo"])
         table = "|param|value|\n|-|-|\n" + "\n".join(
             f"|{k}|{v}|" for k, v in config["ppo"].items())

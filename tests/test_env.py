@@ -5,9 +5,9 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
-import trajectory
 
 import env as env_mod
+import trajectory
 from ikpd import ArmCore
 from rollout import record
 
@@ -75,7 +75,7 @@ def test_observation_layout_follows_the_feature_order():
     obs, *_ = e.step(np.array([0.5, -0.5, 1.0], dtype=np.float32))
     np.testing.assert_allclose(obs[6:9], [0.5, -0.5, 1.0])
     _, _, acc = e.core.target()
-    np.testing.assert_allclose(obs[3:6], acc, rtol=1e-6)
+    np.testing.assert_allclose(obs[3:6], acc / env_mod.OBS_SCALE["target_acc"], rtol=1e-6)
 
 
 def test_lead_is_scaled_and_clipped():

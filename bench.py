@@ -1,0 +1,229 @@
+"""Speed and memory figures: `uv run bench.py` (about 5 minutes on 2 cores).
+
+Every figure is the median of repeats. Printed as a markdown table with the machine, the date
+and the command, ready for the README. `--quick` shortens everything (for a smoke test).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+
+
+@dataclass
+class Args:
+    repeats: int = 7
+    """Repeats per micro-benchmark (the median is reported)."""
+    max_workers: int = 0
+    """Largest worker count for the vectorised figures (0: the number of cores)."""
+    ppo_iterations: int = 2
+    """PPO iterations timed per configuration (after one warm-up iteration)."""
+    quick: bool = False
+    """Tiny budgets, for a smoke test of the script itself."""
+    out: Path | None = None
+    """Also write the markdown table to this file."""
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def bench_physics(n: int, repeats: int) -> float:
+    """Microseconds for 5 x mj_step of the scene (one env step's worth of physics)."""
+    import mujoco
+
+    from ikpd import HOME_QPOS, load_model
+
+    m = load_model()
+    d = mujoco.MjData(m)
+    d.qpos[:7] = d.ctrl[:7] = HOME_QPOS
+
+    def run():
+        for _ in range(n):
+            mujoco.mj_step(m, d, 5)
+
+    run()
+    return median_time(run, repeats) / n * 1e6
+
+
+def bench_env(n: int, repeats: int) -> tuple[float, float]:
+    """Microseconds per step through gymnasium.make (all wrappers), and per core step alone."""
+    import gymnasium as gym
+
+    import env  # noqa: F401
+
+    e = gym.make("PandaLead-v0", episode_steps=n + 1)
+    actions = np.random.default_rng(0).uniform(-1, 1, (n, 3)).astype(np.float32)
+
+    def run():
+        e.reset(seed=0)
+        for a in actions:
+            e.step(a)
+
+    run()
+    full = median_time(run, repeats) / n * 1e6
+    core = e.unwrapped.core
+    leads = actions.astype(float) * 0.15
+
+    def run_core():
+        core.reset(e.unwrapped.traj, n + 1)
+        for lead in leads:
+            core.step(lead)
+
+    return full, median_time(run_core, repeats) / n * 1e6
+
+
+def bench_vec(kind: str, n_envs: int, workers: int, seconds: float) -> float:
+    """Env steps per second of a vectorised env stepping random actions."""
+    from train import make_vec_env
+
+    vec = make_vec_env({}, n_envs, 0, kind, workers)
+    vec.reset()
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (64, n_envs, 3)).astype(np.float32)
+    for a in actions[:10]:
+        vec.step(a)
+    steps, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        vec.step(actions[steps % 64])
+        steps += 1
+    rate = steps * n_envs / (time.perf_counter() - t0)
+    vec.close()
+    return rate
+
+
+def bench_ppo(config: dict, iterations: int) -> float:
+    """Samples per second of full PPO (collection + update), after one warm-up iteration."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from train import make_vec_env
+
+    vec = make_vec_env({}, config["n_envs"], 0, config["vec_env"], config.get("n_workers", 0))
+    model = PPO("MlpPolicy", vec, n_steps=config["n_steps"], batch_size=config["batch_size"],
+                n_epochs=config["n_epochs"], device="cpu", seed=0,
+                policy_kwargs=dict(activation_fn=torch.nn.Tanh))
+    per_iter = config["n_steps"] * config["n_envs"]
+    model.learn(per_iter)
+    t = time.perf_counter()
+    model.learn(per_iter * iterations, reset_num_timesteps=False)
+    rate = per_iter * iterations / (time.perf_counter() - t)
+    vec.close()
+    return rate
+
+
+def _tree_rss_mb(pid: int) -> float:
+    """Resident memory of a process and all its descendants, from /proc (Linux)."""
+    total, stack = 0, [pid]
+    while stack:
+        p = stack.pop()
+        try:
+            with open(f"/proc/{p}/statm") as f:
+                total += int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+            with open(f"/proc/{p}/task/{p}/children") as f:
+                stack.extend(int(c) for c in f.read().split())
+        except OSError:
+            continue
+    return total / 2**20
+
+
+def bench_memory(timesteps: int) -> tuple[float, float]:
+    """Peak resident memory (MB) of `train.py` with its defaults, whole process tree; and wall s."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, str(Path(__file__).with_name("train.py")), "--timesteps",
+               str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0"]
+        t = time.perf_counter()
+        proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        peak = 0.0
+        while proc.poll() is None:
+            peak = max(peak, _tree_rss_mb(proc.pid))
+            time.sleep(0.1)
+        if proc.returncode != 0:
+            raise RuntimeError(f"train.py failed: {proc.stderr.read().decode()[-2000:]}")
+        return peak, time.perf_counter() - t
+
+
+REFERENCE = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10)
+
+
+def repo_default() -> dict:
+    from train import Args as TrainArgs
+
+    a = TrainArgs()
+    return dict(n_envs=a.n_envs, vec_env=a.vec_env, n_workers=a.n_workers, n_steps=a.n_steps,
+                batch_size=a.batch_size, n_epochs=a.n_epochs)
+
+
+def main() -> None:
+    args = tyro.cli(Args)
+    cores = os.cpu_count() or 1
+    max_workers = args.max_workers or cores
+    reps = 3 if args.quick else args.repeats
+    n = 200 if args.quick else 2000
+    secs = 0.5 if args.quick else 2.0
+    rows: list[tuple[str, str]] = []
+
+    def row(name: str, value: str) -> None:
+        rows.append((name, value))
+        print(f"{name}: {value}", flush=True)
+
+    physics = bench_physics(n, reps)
+    row("raw physics, 5 x mj_step (one env step)", f"{physics:.1f} us")
+    full, core = bench_env(n, reps)
+    row("env step via gymnasium.make, 1 process", f"{full:.1f} us ({full / physics:.2f}x physics)")
+    row("  of which IK + PD + physics (ArmCore.step)", f"{core:.1f} us ({core / physics:.2f}x)")
+    counts = sorted({w for w in (1, 2, 4, 8, 16, 32) if w <= max_workers} | {max_workers})
+    for w in counts:
+        rate = bench_vec("subproc", w, w, secs)
+        row(f"SB3 SubprocVecEnv, {w} envs ({w} processes)", f"{rate:,.0f} env steps/s")
+    n_batched = max(16, 2 * max_workers)
+    for w in counts:
+        rate = bench_vec("batched", n_batched, w, secs)
+        row(f"BatchedSubprocVecEnv, {n_batched} envs in {w} workers", f"{rate:,.0f} env steps/s")
+    iters = 1 if args.quick else args.ppo_iterations
+    ref = dict(REFERENCE, n_steps=128) if args.quick else REFERENCE
+    default = repo_default()
+    if args.quick:
+        default["n_steps"] = 64
+    ref_rate = bench_ppo(ref, iters)
+    row("PPO samples/s, reference (8 SubprocVecEnv, batch 64, n_steps 1024)", f"{ref_rate:,.0f}")
+    def_rate = bench_ppo(default, iters)
+    desc = ", ".join(f"{k} {v}" for k, v in default.items())
+    row(f"PPO samples/s, repo default ({desc})",
+        f"{def_rate:,.0f} ({def_rate / ref_rate:.1f}x reference)")
+    peak, wall = bench_memory(20_000 if args.quick else 100_000)
+    row("peak memory of `train.py` (defaults, process tree)", f"{peak:,.0f} MB")
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
+    except (OSError, StopIteration):
+        pass
+    header = (f"`{shlex.join(['uv', 'run', 'bench.py', *sys.argv[1:]])}` on {cores} cores "
+              f"({cpu}), {time.strftime('%Y-%m-%d')}, Python {platform.python_version()}")
+    table = "\n".join([header, "", "| figure | value |", "|---|---|",
+                       *[f"| {k.strip()} | {v} |" for k, v in rows]])
+    print("\n" + table)
+    if args.out:
+        args.out.write_text(table + "\n")
+
+
+if __name__ == "__main__":
+    main()
