@@ -196,7 +196,7 @@ class PandaLeadEnv(gym.Env):
 
     def _reset_episode_state(self) -> None:
         self._prev_action = np.zeros(3)
-        self._prev_ee = self.core.tip_pos.copy()
+        self._prev_ee = self.core.tip_pos.copy()  # copied: the core updates tip_pos in place
         self._ee_vel = np.zeros(3)
         self.lead = np.zeros(3)
         self.trail: list[np.ndarray] = []
@@ -220,19 +220,21 @@ class PandaLeadEnv(gym.Env):
         return self._observe(), info
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64).reshape(3)
-        if not np.isfinite(action).all():
+        action = np.array(action, dtype=np.float64).reshape(3)
+        # NaN fails every comparison, so this one test catches NaN and +-inf together.
+        if not (np.abs(action) < np.inf).all():
             raise ValueError(f"action must be finite, got {action} (seed {self._seed_text()})")
-        action = np.clip(action, -1.0, 1.0)
+        np.minimum(np.maximum(action, -1.0, out=action), 1.0, out=action)
         core = self.core
         self.lead = action * self._max_lead
         core.step(self.lead)
         k = core.step_count
-        target = core.target_path[0][k] if k < len(core.target_path[0]) else core.target()[0]
+        target = core.target()[0]
         ee = core.tip_pos
         self._ee_vel = (ee - self._prev_ee) / self.dt
-        self._prev_ee = ee.copy()
-        dist = float(np.linalg.norm(ee - target))
+        self._prev_ee[:] = ee
+        diff = ee - target
+        dist = math.sqrt(diff @ diff)
 
         failure = None
         if core.unstable:

@@ -120,10 +120,14 @@ class ArmCore:
         self._lo = m.jnt_range[:N_JOINTS, 0] + ik.limit_margin
         self._hi = m.jnt_range[:N_JOINTS, 1] - ik.limit_margin
         self._jacp = np.zeros((3, m.nv))
-        self._lambda2 = ik.damping**2
+        self._damp3 = np.eye(3) * ik.damping**2
+        self._eps3 = np.eye(3) * 1e-10
+        self._chol, self._sol = np.zeros((3, 3)), np.zeros(3)
         arm_bodies = {m.body(f"link{i}").id for i in range(8)} | {m.body("hand").id}
         self._is_arm_geom = np.array([m.geom_bodyid[g] in arm_bodies for g in range(m.ngeom)])
-        self._badqacc = int(mujoco.mjtWarning.mjWARN_BADQACC)
+        w = mujoco.mjtWarning
+        self._bad_warnings = [int(x) for x in (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL,
+                                                w.mjWARN_BADQACC, w.mjWARN_BADCTRL)]
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -190,14 +194,22 @@ class ArmCore:
             mujoco.mj_jacSite(m, d, jacp, None, self._tip)
             jac = jacp[:, :N_JOINTS]
             err = target - d.site_xpos[self._tip]
-            # One SVD gives both the damped step V diag(s/(s^2+l^2)) U^T e and the exact
-            # null-space projector I - V V^T (a damped projector would leak the posture pull
+            # Damped step J^T (J J^T + l^2 I)^-1 e, and the posture pull projected by the exact
+            # null-space projector I - J^T (J J^T)^-1 J (a damped projector would leak the pull
             # into the tip position and bias the solution by centimetres near singularities).
-            u, sv, vt = np.linalg.svd(jac, full_matrices=False)
-            dq = vt.T @ ((sv / (sv * sv + self._lambda2)) * (u.T @ err))
+            # 3x3 Cholesky solves through MuJoCo's own routines: a third of an SVD's cost.
+            jjt = jac @ jac.T
+            chol, sol = self._chol, self._sol
+            np.add(jjt, self._damp3, out=chol)
+            mujoco.mju_cholFactor(chol, 0.0)
+            mujoco.mju_cholSolve(sol, chol, err)
+            dq = jac.T @ sol
             if cfg.nullspace_gain:
                 pull = cfg.nullspace_gain * (HOME_QPOS - q)
-                dq += pull - vt.T @ (vt @ pull)
+                np.add(jjt, self._eps3, out=chol)
+                mujoco.mju_cholFactor(chol, 1e-12)
+                mujoco.mju_cholSolve(sol, chol, jac @ pull)
+                dq += pull - jac.T @ sol
             peak = np.abs(dq).max()
             if peak > cfg.max_step:
                 dq *= cfg.max_step / peak
@@ -215,7 +227,7 @@ class ArmCore:
         self.self_collision = False
         self.collision_depth = 0.0
         self.floor_contact = False
-        warnings_before = d.warning[self._badqacc].number
+        warnings_before = self._bad_warning_count()
         self._kinematics_current = False
         for _ in range(self.substeps):
             mujoco.mj_step(m, d)
@@ -224,9 +236,9 @@ class ArmCore:
         self.step_count += 1
         if self.step_count < len(self.target_path[0]):
             d.mocap_pos[self._mocap] = self.target_path[0][self.step_count]
-        # mj_step resets the state itself after a bad acceleration; the warning counter and a
-        # finiteness check catch both that and a blow-up that has not reached NaN in qacc yet.
-        if d.warning[self._badqacc].number != warnings_before or not np.isfinite(d.qpos).all():
+        # MuJoCo resets the state itself on a NaN/huge position, velocity, acceleration or
+        # control (and only warns); the warning counters and a finiteness check catch it.
+        if self._bad_warning_count() != warnings_before or not np.isfinite(d.qpos).all():
             self.unstable = True
         else:
             # mj_step leaves positions of the substep's start: refresh them (and the COM
@@ -234,6 +246,10 @@ class ArmCore:
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             self._kinematics_current = True
+
+    def _bad_warning_count(self) -> int:
+        warning = self.data.warning
+        return sum(warning[i].number for i in self._bad_warnings)
 
     def _scan_contacts(self) -> None:
         con = self.data.contact

@@ -92,9 +92,8 @@ def _model_obs_dim(model_path: Path) -> int | None:
     try:
         with zipfile.ZipFile(model_path) as z:
             data = json.loads(z.read("data"))
-        shape = data["observation_space"][":shape:"] if ":shape:" in data.get(
-            "observation_space", {}) else None
-        return int(shape[0]) if shape else None
+        shape = data["observation_space"]["_shape"]  # SB3 stores the space's attributes
+        return int(shape[0])
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, TypeError):
         return None
 

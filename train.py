@@ -75,6 +75,8 @@ class Args:
     """Continue a run folder from its newest checkpoint (or interrupted model)."""
     archive: str | None = None
     """At the end, copy the best model to archive/NAME.zip with its sidecar and test metrics."""
+    stop_below_cm: float | None = None
+    """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
     progress: bool = True
     """Show a progress bar."""
     extra: dict = field(default_factory=dict)
@@ -106,7 +108,7 @@ def resolve_config(args: Args) -> dict:
                 log_std_init=args.log_std_init,
                 timesteps=int(timesteps), n_envs=args.n_envs, seed=args.seed, device=args.device,
                 vec_env=args.vec_env, n_workers=args.n_workers, eval_freq=args.eval_freq,
-                eval_steps=args.eval_steps,
+                eval_steps=args.eval_steps, stop_below_cm=args.stop_below_cm,
                 checkpoint_freq=args.checkpoint_freq, **args.extra)
 
 
@@ -135,7 +137,12 @@ def make_vec_env(env_kwargs: dict, n_envs: int, seed: int, kind: str = "subproc"
 
     def make(rank: int):
         def thunk():
+            import signal
+
             import env  # noqa: F401  (registers PandaLead-v0 in the worker)
+
+            if kind == "subproc":  # Ctrl-C is the main process's to handle (it saves the model)
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
 
             e = gym.make("PandaLead-v0", **env_kwargs)
             e.reset(seed=seed + rank)
@@ -203,13 +210,20 @@ def _callbacks(run_dir: Path, config: dict, n_envs: int):
             freq = config["eval_freq"]
             if freq and self.num_timesteps - self.last_eval >= freq:
                 self.last_eval = self.num_timesteps
-                self.run_eval()
+                res = self.run_eval()
+                stop = config.get("stop_below_cm")
+                if stop is not None and res["mean_error_cm"] < stop:
+                    print(f"evaluation error {res['mean_error_cm']:.2f} cm < {stop} cm: stopping "
+                          f"at {self.num_timesteps} steps, {time.time() - _START:.0f} s")
+                    return False
             return True
 
         def run_eval(self) -> dict:
             res = evaluate(make_policy(self.model), config["env"], config["eval_steps"])
             for k, v in res.items():
                 self.logger.record(f"eval/{k}", v)
+            self.logger.record("eval/wall_time_s", time.time() - _START)
+            self.logger.record("eval/timesteps", self.num_timesteps)
             self.logger.record("eval/improvement_over_classical_cm",
                                self.baseline["mean_error_cm"] - res["mean_error_cm"])
             if res["mean_error_cm"] < self.best:
@@ -223,8 +237,18 @@ def _callbacks(run_dir: Path, config: dict, n_envs: int):
             self.logger.dump(self.num_timesteps)
             return res
 
-    ckpt = CheckpointCallback(save_freq=max(config["checkpoint_freq"] // n_envs, 1),
-                              save_path=str(run_dir / "checkpoints"), name_prefix="model")
+    class AtomicCheckpoint(CheckpointCallback):
+        """SB3's checkpoint schedule, but written atomically and with a sidecar, so a process
+        killed mid-write never leaves a half zip that --resume would trust."""
+
+        def _on_step(self) -> bool:
+            if self.n_calls % self.save_freq == 0:
+                path = Path(self._checkpoint_path(extension="zip"))
+                save_model(self.model, path, sidecar_for(config, self.num_timesteps))
+            return True
+
+    ckpt = AtomicCheckpoint(save_freq=max(config["checkpoint_freq"] // n_envs, 1),
+                            save_path=str(run_dir / "checkpoints"), name_prefix="model")
     return TrackingEval(), ckpt
 
 
@@ -237,10 +261,20 @@ def sidecar_for(config: dict, timesteps: int, **extra) -> dict:
 
 
 def newest_checkpoint(run_dir: Path) -> Path | None:
+    """The saved model with the most timesteps, by its sidecar; files without one are skipped
+    (every save writes the zip first and its sidecar last)."""
+    import zipfile
+
     cands = list((run_dir / "checkpoints").glob("model_*_steps.zip"))
-    cands += [p for p in (run_dir / "interrupted_model.zip", run_dir / "final_model.zip")
-              if p.is_file()]
-    return max(cands, key=lambda p: p.stat().st_mtime) if cands else None
+    cands += [run_dir / "interrupted_model.zip", run_dir / "final_model.zip"]
+    best, best_steps = None, -1
+    for p in cands:
+        side = p.with_suffix(".json")
+        if p.is_file() and side.is_file() and zipfile.is_zipfile(p):
+            steps = json.loads(side.read_text()).get("timesteps", -1)
+            if steps > best_steps:
+                best, best_steps = p, steps
+    return best
 
 
 def archive_model(run_dir: Path, name: str, config: dict) -> Path:

@@ -19,6 +19,9 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 
 def _worker(remote, parent_remote, env_kwargs: dict, n: int) -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the main process (it saves)
     parent_remote.close()
     import env as env_mod
 
