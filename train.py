@@ -180,7 +180,7 @@ def evaluate(act_fn, env_kwargs: dict, steps: int, episodes=EVAL_SET) -> dict:
     return out
 
 
-def _callbacks(run_dir: Path, config: dict, n_envs: int):
+def _callbacks(run_dir: Path, config: dict, n_envs: int, on_eval=None):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
     from controllers import classical, make_analytic, make_policy
@@ -211,6 +211,8 @@ def _callbacks(run_dir: Path, config: dict, n_envs: int):
             if freq and self.num_timesteps - self.last_eval >= freq:
                 self.last_eval = self.num_timesteps
                 res = self.run_eval()
+                if on_eval is not None and on_eval(self.num_timesteps, res) is False:
+                    return False  # e.g. an Optuna pruner said stop
                 stop = config.get("stop_below_cm")
                 if stop is not None and res["mean_error_cm"] < stop:
                     print(f"evaluation error {res['mean_error_cm']:.2f} cm < {stop} cm: stopping "
@@ -296,7 +298,11 @@ def archive_model(run_dir: Path, name: str, config: dict) -> Path:
     return save_model(model, ARCHIVE_DIR / f"{name}.zip", side)
 
 
-def train(args: Args) -> Path:
+def train(args: Args, on_eval=None) -> Path:
+    """Run (or resume) one training run; returns its folder. ``on_eval(timesteps, metrics)`` is
+    called after each evaluation and may return False to stop the run (sweep.py's pruner)."""
+    global _START
+    _START = time.time()
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import configure
 
@@ -343,7 +349,7 @@ def train(args: Args) -> Path:
         # A str value goes to TensorBoard's text tab as a table.
         logger.record("hyperparameters", table, exclude=("stdout", "csv"))
     model.set_logger(logger)
-    tracker, checkpoint = _callbacks(run_dir, config, config["n_envs"])
+    tracker, checkpoint = _callbacks(run_dir, config, config["n_envs"], on_eval)
     remaining = config["timesteps"] - model.num_timesteps
     try:
         if remaining > 0:

@@ -1,0 +1,314 @@
+"""Grids of presets x training seeds, and hyperparameter searches, on Optuna.
+
+    uv run sweep.py --name ladder --presets v1 v5 v9 --seeds 1 2 3 --timesteps 500000
+    uv run sweep.py --name hp --search --n-trials 30 --timesteps 400000 --workers 2
+    uv run sweep.py --report ladder
+    uv run sweep.py --archive ladder --archive-as ladder_best
+
+Every trial is a train.py run (the same `train.train` code path) with its own run folder
+under sweeps/<name>/runs/; its objective is the best evaluation-set mean tracking error in cm
+(never a test seed). The study lives in an Optuna storage: by default a SQLite file
+sweeps/<name>.db; with `--storage postgresql://...` any number of machines share one study.
+A grid maps Optuna's trial numbers one-to-one onto grid points, so no point runs twice; a
+worker that dies mid-trial stops sending heartbeats, its trial is marked failed after the
+grace period and retried once per failure (RetryFailedTrialCallback). Rerunning the same
+command continues the study where it stopped.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import tyro
+
+SWEEPS_DIR = Path("sweeps")
+
+
+@dataclass
+class Args:
+    name: str = "sweep"
+    """Study name; also the folder sweeps/<name>/ for its runs."""
+    presets: list[str] = field(default_factory=lambda: ["v5"])
+    """Grid mode: presets to train ('default' = train.py's defaults, no preset)."""
+    seeds: list[int] = field(default_factory=lambda: [1, 2, 3])
+    """Grid mode: training seeds per preset."""
+    search: bool = False
+    """Hyperparameter search (TPE sampler, median pruner) instead of a grid."""
+    n_trials: int = 20
+    """Search mode: trials in total (over all workers and machines)."""
+    timesteps: int = 300_000
+    """Training budget per trial."""
+    eval_freq: int = 50_000
+    """Evaluation interval per trial (the pruner sees each evaluation)."""
+    workers: int = 1
+    """Trials run in parallel on this machine (each gets cores/workers cores)."""
+    storage: str | None = None
+    """Optuna storage URL (default: sqlite:///sweeps/<name>.db); postgresql://... for many machines."""
+    heartbeat: int = 30
+    """Seconds between a running trial's heartbeats; a trial silent for 3x this is failed."""
+    max_retry: int = 2
+    """How often a failed (e.g. killed) trial is retried."""
+    train_args: str = ""
+    """Extra train.py flags for every trial, one string: --train-args="--n-envs 4 --vec-env dummy"."""
+    report: str | None = None
+    """Print the trials of this study and per-configuration statistics, then exit."""
+    archive: str | None = None
+    """Send the best trial of this study to the archive (as train.py --archive does), then exit."""
+    archive_as: str | None = None
+    """Archive name for --archive (default: the study name)."""
+    worker_id: int = -1
+    """(internal) set for the worker processes this command starts."""
+
+
+def storage_for(args: Args, name: str):
+    import warnings
+
+    import optuna
+    from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
+
+    # Heartbeats and the stale-trial retry are marked experimental; they are what we rely on.
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+
+    url = args.storage or f"sqlite:///{SWEEPS_DIR / name}.db"
+    if url.startswith("sqlite:///"):
+        Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    import sqlalchemy.exc
+
+    for attempt in range(5):
+        try:
+            return RDBStorage(url, heartbeat_interval=args.heartbeat,
+                              grace_period=3 * args.heartbeat,
+                              heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(
+                                  max_retry=args.max_retry))
+        except sqlalchemy.exc.IntegrityError:
+            # Machines started at once on a fresh database race to create Optuna's tables;
+            # the loser retries and finds them made.
+            time.sleep(0.5 + attempt)
+    raise RuntimeError(f"could not open the Optuna storage {url}")
+
+
+def grid_space(args: Args) -> dict:
+    return {"preset": list(args.presets), "seed": list(args.seeds)}
+
+
+def make_study(args: Args, storage):
+    import optuna
+
+    if args.search:
+        sampler = optuna.samplers.TPESampler(seed=0)
+        pruner = optuna.pruners.MedianPruner(n_startup_trials=4, n_warmup_steps=1)
+    else:
+        # A fixed seed: every worker must shuffle the grid the same way.
+        sampler, pruner = optuna.samplers.GridSampler(grid_space(args), seed=0), None
+    study = optuna.create_study(study_name=args.name, storage=storage, direction="minimize",
+                                sampler=sampler, pruner=pruner, load_if_exists=True)
+    study.set_user_attr("mode", "search" if args.search else "grid")
+    return study
+
+
+def suggest(trial, args: Args) -> tuple[list[str], dict]:
+    """-> (train.py flags, params shown in reports) for one trial."""
+    if not args.search:
+        preset, seed = trial.suggest_categorical("preset", args.presets), trial.suggest_categorical(
+            "seed", args.seeds)
+        flags = ["--seed", str(seed)] + ([] if preset == "default" else ["--preset", preset])
+        return flags, {"preset": preset, "seed": seed}
+    p = {
+        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
+        "n_epochs": trial.suggest_categorical("n_epochs", [3, 5, 10]),
+        "batch_size": trial.suggest_categorical("batch_size", [256, 512, 1024, 2048]),
+        "n_steps": trial.suggest_categorical("n_steps", [128, 256, 512]),
+        "gamma": trial.suggest_categorical("gamma", [0.95, 0.98, 0.99]),
+        "log_std_init": trial.suggest_float("log_std_init", -2.0, 0.0),
+    }
+    flags = [x for k, v in p.items() for x in (f"--{k.replace('_', '-')}", str(v))]
+    return flags + ["--seed", "0"], p
+
+
+def objective(trial, args: Args, threads: int) -> float:
+    import optuna
+    import torch
+
+    import train
+
+    torch.set_num_threads(threads)
+    flags, params = suggest(trial, args)
+    run_root = SWEEPS_DIR / args.name / "runs"
+    argv = [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
+            "--runs-dir", str(run_root), "--name", f"t{trial.number:04d}", "--no-progress",
+            *shlex.split(args.train_args)]
+    targs = tyro.cli(train.Args, args=argv)
+    pruned = []
+
+    def on_eval(step: int, res: dict) -> bool:
+        trial.report(res["mean_error_cm"], step)
+        if args.search and trial.should_prune():
+            pruned.append(step)
+            return False
+        return True
+
+    t0 = time.time()
+    run_dir = train.train(targs, on_eval=on_eval)
+    trial.set_user_attr("run_dir", str(run_dir))
+    trial.set_user_attr("wall_time_s", round(time.time() - t0, 1))
+    if pruned:
+        raise optuna.TrialPruned(f"pruned at {pruned[0]} steps")
+    import json
+
+    return float(json.loads((run_dir / "best.json").read_text())["mean_error_cm"])
+
+
+def _duplicate(study, trial) -> bool:
+    """Whether another live trial already holds this trial's grid point. Workers asking at the
+    same moment can be handed the same point; the lowest trial number keeps it."""
+    from optuna.trial import TrialState
+
+    gid = trial.storage.get_trial_system_attrs(trial._trial_id).get("grid_id")
+    for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
+        if t.number != trial.number and t.system_attrs.get("grid_id") == gid:
+            if t.state == TrialState.COMPLETE or t.number < trial.number:
+                return True
+    return False
+
+
+def work(args: Args) -> None:
+    """One worker: run trials until every grid point is done (or the search has n_trials)."""
+    import optuna
+    from optuna.trial import TrialState
+
+    storage = storage_for(args, args.name)
+    study = make_study(args, storage)
+    threads = max(1, (os.cpu_count() or 1) // max(1, args.workers))
+    n_grid = math.prod(len(v) for v in grid_space(args).values())
+
+    while True:
+        optuna.storages.fail_stale_trials(study)  # a dead worker's trial -> FAIL -> retried
+        trials = study.get_trials(deepcopy=False)
+        by_state = {s: [t for t in trials if t.state == s] for s in TrialState}
+        waiting, running = by_state[TrialState.WAITING], by_state[TrialState.RUNNING]
+        if args.search:
+            finished = len(by_state[TrialState.COMPLETE]) + len(by_state[TrialState.PRUNED])
+            if finished + len(running) >= args.n_trials and not waiting:
+                if not running:
+                    return
+                time.sleep(min(5, args.heartbeat))
+                continue
+        else:
+            done = {t.system_attrs.get("grid_id") for t in by_state[TrialState.COMPLETE]}
+            tried = {t.system_attrs.get("grid_id") for t in trials if t.state.is_finished()}
+            if len(done) >= n_grid or (len(tried) >= n_grid and not waiting and not running):
+                return  # all points done (or failed more often than retries allow)
+            if not waiting and len(tried | {t.system_attrs.get("grid_id") for t in running}) \
+                    >= n_grid:
+                time.sleep(min(5, args.heartbeat))  # the rest are running; a retry may appear
+                continue
+
+        def guarded(trial):
+            if not args.search and _duplicate(study, trial):
+                raise optuna.TrialPruned("grid point already taken by another worker")
+            return objective(trial, args, threads)
+
+        study.optimize(guarded, n_trials=1, catch=(ValueError,))
+
+
+def launch(args: Args) -> None:
+    if args.workers <= 1:
+        work(args)
+        return
+    storage_for(args, args.name)  # create the schema once, before the workers race for it
+    procs = [subprocess.Popen([sys.executable, __file__, *sys.argv[1:], "--worker-id", str(i)])
+             for i in range(args.workers)]
+    codes = [p.wait() for p in procs]
+    if any(codes):
+        raise SystemExit(f"a worker exited with {codes}; rerun the command to continue")
+
+
+def report(args: Args, name: str) -> None:
+    import numpy as np
+    import optuna
+    from rich.console import Console
+    from rich.table import Table
+    from scipy import stats
+
+    try:
+        study = optuna.load_study(study_name=name, storage=storage_for(args, name))
+    except KeyError:
+        raise SystemExit(f"error: no study named {name!r} in {args.storage or 'sweeps/'}") from None
+    trials = study.get_trials(deepcopy=False)
+    table = Table(title=f"study {name}: {len(trials)} trials")
+    for col in ("#", "state", "configuration", "seed", "eval error (cm)", "wall (s)"):
+        table.add_column(col)
+    groups: dict[str, list[float]] = {}
+    for t in trials:
+        params = dict(t.params)
+        seed = params.pop("seed", "-")
+        config = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in sorted(params.items()))
+        value = f"{t.value:.2f}" if t.value is not None else "-"
+        table.add_row(str(t.number), t.state.name, config, str(seed), value,
+                      str(t.user_attrs.get("wall_time_s", "-")))
+        if t.state.name == "COMPLETE":
+            groups.setdefault(config, []).append(t.value)
+    console = Console(width=160)
+    console.print(table)
+    summary = Table(title="per configuration, across training seeds")
+    for col in ("configuration", "n", "mean (cm)", "std", "95% interval of the mean"):
+        summary.add_column(col)
+    for config, vals in sorted(groups.items(), key=lambda kv: np.mean(kv[1])):
+        v = np.array(vals)
+        if len(v) > 1:
+            half = stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v))
+            ci, sd = f"[{v.mean() - half:.2f}, {v.mean() + half:.2f}]", f"{v.std(ddof=1):.2f}"
+        else:
+            ci, sd = "n/a (1 seed)", "-"
+        summary.add_row(config, str(len(v)), f"{v.mean():.2f}", sd, ci)
+    console.print(summary)
+
+
+def archive(args: Args, name: str) -> None:
+    import json
+
+    import optuna
+
+    import train
+
+    study = optuna.load_study(study_name=name, storage=storage_for(args, name))
+    best = study.best_trial
+    run_dir = Path(best.user_attrs["run_dir"])
+    config = json.loads((run_dir / "config.json").read_text())
+    path = train.archive_model(run_dir, args.archive_as or name, config)
+    print(f"best trial #{best.number} ({best.value:.2f} cm, {best.params}) -> {path}")
+
+
+def main() -> None:
+    args = tyro.cli(Args)
+    if args.report:
+        report(args, args.report)
+    elif args.archive:
+        archive(args, args.archive)
+    elif args.worker_id >= 0:
+        work(args)
+    else:
+        from presets import get_preset
+
+        try:
+            for p in args.presets:
+                if p != "default":
+                    get_preset(p)  # "did you mean" before any work starts
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        launch(args)
+        report(args, args.name)
+
+
+if __name__ == "__main__":
+    main()
