@@ -108,6 +108,12 @@ def bench_vec(kind: str, n_envs: int, workers: int, seconds: float) -> float:
     return rate
 
 
+def reference() -> dict:
+    from train import REFERENCE_HPARAMS
+
+    return dict(REFERENCE_HPARAMS)
+
+
 def bench_ppo(config: dict, iterations: int) -> float:
     """Samples per second of full PPO (collection + update), after one warm-up iteration."""
     import torch
@@ -117,8 +123,9 @@ def bench_ppo(config: dict, iterations: int) -> float:
 
     vec = make_vec_env({}, config["n_envs"], 0, config["vec_env"], config.get("n_workers", 0))
     model = PPO("MlpPolicy", vec, n_steps=config["n_steps"], batch_size=config["batch_size"],
-                n_epochs=config["n_epochs"], device="cpu", seed=0,
-                policy_kwargs=dict(activation_fn=torch.nn.Tanh))
+                n_epochs=config["n_epochs"], learning_rate=config["learning_rate"], device="cpu",
+                seed=0, policy_kwargs=dict(activation_fn=torch.nn.Tanh,
+                                           log_std_init=config["log_std_init"]))
     per_iter = config["n_steps"] * config["n_envs"]
     model.learn(per_iter)
     t = time.perf_counter()
@@ -128,23 +135,24 @@ def bench_ppo(config: dict, iterations: int) -> float:
     return rate
 
 
-def _tree_rss_mb(pid: int) -> float:
-    """Resident memory of a process and all its descendants, from /proc (Linux)."""
+def _tree_pss_mb(pid: int) -> float:
+    """Proportional set size of a process and all its descendants (Linux /proc): shared pages
+    (torch, MuJoCo) count once in total, not once per worker as RSS would."""
     total, stack = 0, [pid]
     while stack:
         p = stack.pop()
         try:
-            with open(f"/proc/{p}/statm") as f:
-                total += int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+            with open(f"/proc/{p}/smaps_rollup") as f:
+                total += next(int(line.split()[1]) for line in f if line.startswith("Pss:"))
             with open(f"/proc/{p}/task/{p}/children") as f:
                 stack.extend(int(c) for c in f.read().split())
-        except OSError:
+        except (OSError, StopIteration):
             continue
-    return total / 2**20
+    return total / 1024
 
 
 def bench_memory(timesteps: int) -> tuple[float, float]:
-    """Peak resident memory (MB) of `train.py` with its defaults, whole process tree; and wall s."""
+    """Peak memory (MB, PSS) of `train.py` with its defaults, whole process tree; and wall s."""
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, str(Path(__file__).with_name("train.py")), "--timesteps",
                str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0"]
@@ -152,14 +160,13 @@ def bench_memory(timesteps: int) -> tuple[float, float]:
         proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         peak = 0.0
         while proc.poll() is None:
-            peak = max(peak, _tree_rss_mb(proc.pid))
+            peak = max(peak, _tree_pss_mb(proc.pid))
             time.sleep(0.1)
         if proc.returncode != 0:
             raise RuntimeError(f"train.py failed: {proc.stderr.read().decode()[-2000:]}")
         return peak, time.perf_counter() - t
 
 
-REFERENCE = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10)
 
 
 def repo_default() -> dict:
@@ -167,7 +174,8 @@ def repo_default() -> dict:
 
     a = TrainArgs()
     return dict(n_envs=a.n_envs, vec_env=a.vec_env, n_workers=a.n_workers, n_steps=a.n_steps,
-                batch_size=a.batch_size, n_epochs=a.n_epochs)
+                batch_size=a.batch_size, n_epochs=a.n_epochs, learning_rate=a.learning_rate,
+                log_std_init=a.log_std_init)
 
 
 def main() -> None:
@@ -197,18 +205,19 @@ def main() -> None:
         rate = bench_vec("batched", n_batched, w, secs)
         row(f"BatchedSubprocVecEnv, {n_batched} envs in {w} workers", f"{rate:,.0f} env steps/s")
     iters = 1 if args.quick else args.ppo_iterations
-    ref = dict(REFERENCE, n_steps=128) if args.quick else REFERENCE
+    ref = dict(reference(), n_steps=128) if args.quick else reference()
     default = repo_default()
     if args.quick:
         default["n_steps"] = 64
     ref_rate = bench_ppo(ref, iters)
     row("PPO samples/s, reference (8 SubprocVecEnv, batch 64, n_steps 1024)", f"{ref_rate:,.0f}")
     def_rate = bench_ppo(default, iters)
-    desc = ", ".join(f"{k} {v}" for k, v in default.items())
+    desc = ", ".join(f"{k} {v}" for k, v in default.items() if k in (
+        "n_envs", "vec_env", "n_steps", "batch_size", "n_epochs"))
     row(f"PPO samples/s, repo default ({desc})",
         f"{def_rate:,.0f} ({def_rate / ref_rate:.1f}x reference)")
     peak, wall = bench_memory(20_000 if args.quick else 100_000)
-    row("peak memory of `train.py` (defaults, process tree)", f"{peak:,.0f} MB")
+    row("peak memory of `train.py` (defaults, whole process tree, PSS)", f"{peak:,.0f} MB")
 
     cpu = platform.processor() or platform.machine()
     try:

@@ -28,35 +28,35 @@ class Args:
     """A version of the reference ladder (v1..v9, see presets.py); flags override it."""
     timesteps: int | None = None
     """Total environment steps (default: the preset's, else 5M)."""
-    n_envs: int = 8
-    """Parallel environments (SubprocVecEnv workers)."""
-    n_steps: int = 1024
-    """Steps per environment per PPO rollout."""
-    batch_size: int = 64
-    """PPO minibatch size."""
+    n_envs: int = 32
+    """Parallel environments (reference: 8)."""
+    n_steps: int = 128
+    """Steps per environment per PPO rollout (reference: 1024)."""
+    batch_size: int = 1024
+    """PPO minibatch size (reference: 64)."""
     n_epochs: int = 10
     """PPO epochs per rollout."""
     gamma: float = 0.99
     """Discount factor."""
     gae_lambda: float = 0.95
     """GAE lambda."""
-    learning_rate: float = 3e-4
-    """Adam learning rate."""
+    learning_rate: float = 1e-3
+    """Adam learning rate (reference: 3e-4)."""
     clip_range: float = 0.2
     """PPO clipping parameter."""
     ent_coef: float = 0.0
     """Entropy bonus coefficient."""
     net_arch: tuple[int, ...] = (64, 64)
     """Hidden layer sizes of the policy and value MLPs."""
-    log_std_init: float = 0.0
-    """Initial log standard deviation of the Gaussian policy (SB3 default 0: std 1)."""
+    log_std_init: float = -1.0
+    """Initial log standard deviation of the Gaussian policy (reference and SB3: 0, std 1)."""
     seed: int = 42
     """Seeds Python, numpy, torch and the environments."""
     device: str = "cpu"
     """Torch device (a 64x64 MLP runs fastest on the CPU)."""
     env_kwargs: str = "{}"
     """JSON of env constructor arguments, applied over the preset's, e.g. '{"max_lead": 0.1}'."""
-    vec_env: Literal["subproc", "batched", "dummy"] = "subproc"
+    vec_env: Literal["subproc", "batched", "dummy"] = "batched"
     """subproc: SB3 SubprocVecEnv (a process per env); batched: --n-workers processes each
     stepping a batch of envs (vecenv.py); dummy: all envs in this process."""
     n_workers: int = 0
@@ -79,9 +79,16 @@ class Args:
     """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
     progress: bool = True
     """Show a progress bar."""
+    reference_hparams: bool = False
+    """Use the reference work's PPO settings (8 SubprocVecEnv envs, n_steps 1024, batch 64,
+    lr 3e-4, log_std_init 0), overriding the flags above."""
     extra: dict = field(default_factory=dict)
     """(internal) extra fields recorded in config.json, e.g. by sweep.py."""
 
+
+# The reference work's configuration (what `--reference-hparams` restores).
+REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10,
+                         learning_rate=3e-4, log_std_init=0.0)
 
 PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate",
             "clip_range", "ent_coef")
@@ -89,8 +96,12 @@ PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learnin
 
 def resolve_config(args: Args) -> dict:
     """Preset + flags -> one config dict: {env: {...}, ppo: {...}, timesteps, ...}."""
+    from dataclasses import replace
+
     from presets import get_preset
 
+    if args.reference_hparams:
+        args = replace(args, **REFERENCE_HPARAMS)
     preset = get_preset(args.preset) if args.preset else {"env": {}, "ppo": {}}
     try:
         env_over = json.loads(args.env_kwargs)
