@@ -24,8 +24,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-    # Headless: offscreen rendering through EGL. MuJoCo reads this once, at import.
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    import ctypes.util
+
+    # Headless: offscreen rendering through EGL, where the EGL library exists (MuJoCo reads
+    # this once, at import; a machine without EGL can still simulate, just not render).
+    if ctypes.util.find_library("EGL"):
+        os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402

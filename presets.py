@@ -34,6 +34,13 @@ PRESETS: dict[str, dict] = {
                         w_alive=0.0, w_termination=50.0)),
     "v9": dict(doc="v5 + action-change penalty (weight 0.1) + 5 s episodes",
                env=dict(obs_features=OBS_15, w_action_change=0.1, episode_steps=500)),
+    # This repo's own configuration (not in the reference ladder): the policy sees its previous
+    # action, so the action-change penalty is a Markov cost it can plan against; the penalty
+    # keeps the lead smooth (jerk), the collision term keeps the arm out of itself.
+    "smooth": dict(doc="v5 + prev_action observed + action-change penalty 0.5 + collision "
+                       "penalty + 5 s episodes (this repo's own)",
+                   env=dict(obs_features=OBS_15 + ("prev_action",), w_action_change=0.5,
+                            w_collision=COLLISION_WEIGHT, episode_steps=500)),
 }
 for _p in PRESETS.values():
     _p.setdefault("ppo", {})
