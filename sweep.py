@@ -4,6 +4,7 @@
     uv run sweep.py --name hp --search --n-trials 30 --timesteps 400000 --workers 2
     uv run sweep.py --report ladder
     uv run sweep.py --archive ladder --archive-as ladder_best
+    uv run sweep.py --archive ladder --archive-preset v5 --archive-as v5   # best seed of v5
 
 Every trial is a train.py run (the same `train.train` code path) with its own run folder
 under sweeps/<name>/runs/; its objective is the best evaluation-set mean tracking error in cm
@@ -63,6 +64,8 @@ class Args:
     """Send the best trial of this study to the archive (as train.py --archive does), then exit."""
     archive_as: str | None = None
     """Archive name for --archive (default: the study name)."""
+    archive_preset: str | None = None
+    """With --archive on a grid: the best trial of this preset only (e.g. the best of 3 seeds)."""
     worker_id: int = -1
     """(internal) set for the worker processes this command starts."""
 
@@ -281,7 +284,14 @@ def archive(args: Args, name: str) -> None:
     import train
 
     study = optuna.load_study(study_name=name, storage=storage_for(args, name))
-    best = study.best_trial
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    if args.archive_preset is not None:
+        done = [t for t in done if t.params.get("preset") == args.archive_preset]
+    if not done:
+        which = f" with preset {args.archive_preset!r}" if args.archive_preset else ""
+        raise SystemExit(f"error: study {name!r} has no completed trial{which}")
+    # Chosen on the evaluation-set error (the objective), never on test seeds.
+    best = min(done, key=lambda t: t.value)
     run_dir = Path(best.user_attrs["run_dir"])
     config = json.loads((run_dir / "config.json").read_text())
     path = train.archive_model(run_dir, args.archive_as or name, config)

@@ -21,8 +21,8 @@ from pathlib import Path
 import tyro
 
 CANDIDATES: dict[str, list[str]] = {
-    "reference": ["--n-envs", "8", "--vec-env", "subproc", "--n-steps", "1024",
-                  "--batch-size", "64", "--n-epochs", "10"],
+    # The reference work's PPO settings exactly (lr 3e-4, log_std_init 0 included).
+    "reference": ["--reference-hparams"],
     "b16x256_bs1024": ["--n-envs", "16", "--vec-env", "batched", "--n-steps", "256",
                        "--batch-size", "1024", "--n-epochs", "10"],
     "b16x512_bs2048_e5": ["--n-envs", "16", "--vec-env", "batched", "--n-steps", "512",

@@ -68,7 +68,8 @@ def test_same_episodes_alone_in_dummy_and_in_batched_workers():
     np.testing.assert_array_equal(alone, batched)
 
 
-def test_unstable_simulation_ends_the_episode_as_a_flagged_failure():
+def test_unstable_simulation_ends_the_episode_as_a_flagged_failure(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo appends its warning to MUJOCO_LOG.TXT in the cwd
     e = env_mod.PandaLeadEnv(w_termination=2.0)
     e.reset(seed=0, options={"traj_seed": 42})
     e.core.data.qvel[:] = 1e12  # a blow-up: MuJoCo flags the acceleration as bad
