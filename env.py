@@ -190,6 +190,16 @@ class PandaLeadEnv(gym.Env):
             self._noise_std[a:b] = obs_noise.get(f, 0.0)
             self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
         self._has_noise = bool(self._noise_std.any())
+        # One bound getter per selected feature, made once: the step builds no dict of every
+        # feature just to use a few of them.
+        core = self.core
+        source = {
+            "ee_pos": lambda: core.data.site_xpos[core._tip], "ee_vel": lambda: self._ee_vel,
+            "target_pos": lambda: self._target_now[0], "target_vel": lambda: self._target_now[1],
+            "target_acc": lambda: self._target_now[2], "joint_pos": lambda: core.qpos,
+            "joint_vel": lambda: core.qvel, "prev_action": lambda: self._prev_action,
+        }
+        self._getters = [(source[f], a, b) for f, a, b in self._layout]
         self._renderer = None
         self.traj = None
         self._reset_episode_state()
@@ -216,20 +226,23 @@ class PandaLeadEnv(gym.Env):
         self.core.reset(self.traj, self._episode_steps)
         self._reachable = reachable(self.core.target_path[0])
         self._reset_episode_state()
+        self._target_now = self.core.target()
         info = {"traj_seed": traj_seed, "shape": self.traj.shape}
         return self._observe(), info
 
     def step(self, action):
         action = np.array(action, dtype=np.float64).reshape(3)
-        # NaN fails every comparison, so this one test catches NaN and +-inf together.
-        if not (np.abs(action) < np.inf).all():
+        a0, a1, a2 = action.tolist()  # plain floats: cheaper than numpy for three numbers
+        if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)):
             raise ValueError(f"action must be finite, got {action} (seed {self._seed_text()})")
-        np.minimum(np.maximum(action, -1.0, out=action), 1.0, out=action)
+        if not (-1.0 <= a0 <= 1.0 and -1.0 <= a1 <= 1.0 and -1.0 <= a2 <= 1.0):
+            np.minimum(np.maximum(action, -1.0, out=action), 1.0, out=action)
         core = self.core
         self.lead = action * self._max_lead
         core.step(self.lead)
         k = core.step_count
-        target = core.target()[0]
+        self._target_now = core.target()
+        target = self._target_now[0]
         ee = core.tip_pos
         self._ee_vel = (ee - self._prev_ee) / self.dt
         self._prev_ee[:] = ee
@@ -280,16 +293,9 @@ class PandaLeadEnv(gym.Env):
         return str(getattr(self.traj, "seed", "?"))
 
     def _observe(self) -> np.ndarray:
-        core = self.core
-        pos, vel, acc = core.target()
-        values = {
-            "ee_pos": core.tip_pos, "ee_vel": self._ee_vel, "target_pos": pos,
-            "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
-            "joint_vel": core.qvel, "prev_action": self._prev_action,
-        }
         obs = self._raw_obs
-        for f, a, b in self._layout:
-            obs[a:b] = values[f]
+        for getter, a, b in self._getters:
+            obs[a:b] = getter()
         if self._has_noise:
             obs += self.np_random.normal(0.0, self._noise_std)
         return (obs * self._inv_scale).astype(np.float32)

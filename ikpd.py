@@ -18,6 +18,7 @@ without a display); ``--seeds 0-99 --prefix ikpd`` writes rollout files.
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -129,9 +130,14 @@ class ArmCore:
         self._chol, self._sol = np.zeros((3, 3)), np.zeros(3)
         arm_bodies = {m.body(f"link{i}").id for i in range(8)} | {m.body("hand").id}
         self._is_arm_geom = np.array([m.geom_bodyid[g] in arm_bodies for g in range(m.ngeom)])
+        # MuJoCo counts each kind of warning in d.warning; a live numpy view of the counters of
+        # the "simulation is unstable" kinds (contiguous in mjtWarning) costs one slice a step.
         w = mujoco.mjtWarning
-        self._bad_warnings = [int(x) for x in (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL,
-                                                w.mjWARN_BADQACC, w.mjWARN_BADCTRL)]
+        bad = sorted(int(x) for x in (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC,
+                                      w.mjWARN_BADCTRL))
+        assert bad == list(range(bad[0], bad[0] + 4)), bad
+        self._bad_warnings = self.data.warning.number[bad[0]:bad[0] + 4]
+        self._jac_arm = self._jacp[:, :N_JOINTS]  # the arm's columns (all of them here: nv = 7)
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -155,6 +161,7 @@ class ArmCore:
             d.mocap_pos[self._mocap] = self.target_path[0][0]
         mujoco.mj_forward(m, d)
         self._kinematics_current = True
+        self._warnings_seen = self._bad_warning_count()
 
     @property
     def time(self) -> float:
@@ -186,7 +193,7 @@ class ArmCore:
         """DLS IK for the tip position, warm-started from q0 (default: the measured angles)."""
         m, cfg = self.model, self.ik_config
         q = (self.data.qpos[:N_JOINTS] if q0 is None else q0).copy()
-        jacp = self._jacp
+        jacp, jac = self._jacp, self._jac_arm
         for i in range(cfg.iters if iters is None else iters):
             if i == 0 and q0 is None and self._kinematics_current:
                 d = self.data  # its kinematics are those of the measured q already
@@ -196,7 +203,6 @@ class ArmCore:
                 mujoco.mj_kinematics(m, d)
                 mujoco.mj_comPos(m, d)
             mujoco.mj_jacSite(m, d, jacp, None, self._tip)
-            jac = jacp[:, :N_JOINTS]
             err = target - d.site_xpos[self._tip]
             # Damped step J^T (J J^T + l^2 I)^-1 e, and the posture pull projected by the exact
             # null-space projector I - J^T (J J^T)^-1 J (a damped projector would leak the pull
@@ -231,7 +237,7 @@ class ArmCore:
         self.self_collision = False
         self.collision_depth = 0.0
         self.floor_contact = False
-        warnings_before = self._bad_warning_count()
+        warnings_before = self._warnings_seen
         self._kinematics_current = False
         for _ in range(self.substeps):
             mujoco.mj_step(m, d)
@@ -242,7 +248,10 @@ class ArmCore:
             d.mocap_pos[self._mocap] = self.target_path[0][self.step_count]
         # MuJoCo resets the state itself on a NaN/huge position, velocity, acceleration or
         # control (and only warns); the warning counters and a finiteness check catch it.
-        if self._bad_warning_count() != warnings_before or not np.isfinite(d.qpos).all():
+        self._warnings_seen = self._bad_warning_count()
+        # q.q is NaN or inf exactly when some q is (or is astronomically large): one dot product
+        # instead of a ufunc and a reduction.
+        if self._warnings_seen != warnings_before or not math.isfinite(d.qpos @ d.qpos):
             self.unstable = True
         else:
             # mj_step leaves positions of the substep's start: refresh them (and the COM
@@ -251,9 +260,9 @@ class ArmCore:
             mujoco.mj_comPos(m, d)
             self._kinematics_current = True
 
-    def _bad_warning_count(self) -> int:
-        warning = self.data.warning
-        return sum(warning[i].number for i in self._bad_warnings)
+    def _bad_warning_count(self) -> bytes:
+        """The counters as bytes: comparing two of these is cheaper than summing them."""
+        return self._bad_warnings.tobytes()
 
     def _scan_contacts(self) -> None:
         con = self.data.contact
