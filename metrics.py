@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import tyro
+from rich import box
 from rich.console import Console
 from rich.table import Table
 from scipy import stats
@@ -308,6 +309,8 @@ class Args:
     """Number of bootstrap resamples for the 95% CI of the mean paired difference."""
     ci_seed: int = 0
     """Seed of the bootstrap random generator (makes CIs reproducible)."""
+    markdown: bool = False
+    """Print the tables as GitHub markdown (what the README's tables are pasted from)."""
 
 
 def main(args: Args) -> int:
@@ -342,14 +345,25 @@ def main(args: Args) -> int:
                   f"B = {args.label_b} ({args.root}/{args.prefix_b})", markup=False)
     caption = (f"settle {args.settle_time:g} s, band {args.band_cm:g} cm; CI: bootstrap over "
                f"seeds, {args.bootstrap} resamples, seed {args.ci_seed}")
-    table = metrics_table(cmp.rows, args.label_a, args.label_b, "all seeds")
-    table.caption = caption
-    console.print(table)
+    tables = [metrics_table(cmp.rows, args.label_a, args.label_b, "all seeds")]
+    tables[0].caption = caption
     if args.breakdown:
-        console.print(seed_table(cmp))
+        tables.append(seed_table(cmp))
         for shape, rows in cmp.by_shape.items():
             n = sum(1 for s in cmp.seeds if cmp.shapes[s] == shape)
-            console.print(metrics_table(rows, args.label_a, args.label_b, f"shape {shape} (n={n})"))
+            tables.append(metrics_table(rows, args.label_a, args.label_b, f"shape {shape} (n={n})"))
+    for table in tables:
+        if args.markdown:
+            console.print(f"\n{table.title}" + (f" ({table.caption})" if table.caption else ""),
+                          markup=False, highlight=False)
+            table.title = table.caption = None
+            table.box = box.MARKDOWN
+            with console.capture() as captured:
+                console.print(table)
+            # rich pads the markdown box with blank rows of spaces: keep only the table lines
+            print("\n".join(ln.rstrip() for ln in captured.get().splitlines() if ln.strip()))
+            continue
+        console.print(table)
     if args.plot:
         console.print(f"wrote {plot(cmp, a, b, plot_seeds, args.band_cm, args.plot)}", markup=False)
     return 0

@@ -183,6 +183,22 @@ def test_cli_table_breakdown_and_plot(root):
     assert not list(png.parent.glob("*.tmp.png"))
 
 
+def test_cli_markdown_tables_are_github_markdown(root):
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned",
+                "--label-a", "Alpha", "--label-b", "Beta", "--breakdown", "--markdown")
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    heads = [i for i, ln in enumerate(lines) if ln.startswith("| Metric")]
+    assert len(heads) == 3  # all seeds, then one per shape (circle, fig8)
+    for i in heads:
+        assert set(lines[i + 1]) <= set("|-: ")  # the markdown separator row
+        assert lines[i + 2].startswith("| mean error (cm)")
+        assert lines[i - 1].strip()  # a title line above each table
+    rows = [ln for ln in lines if ln.startswith("|")]
+    assert all(ln.endswith("|") and ln == ln.rstrip() for ln in rows)
+    assert not any(ln.strip() == "" and ln != "" for ln in lines)  # no lines of bare spaces
+
+
 def test_cli_unknown_prefix_lists_existing(root):
     p = run_cli("--root", str(root), "--prefix-a", "nope", "--prefix-b", "learned")
     assert p.returncode == 2
