@@ -19,7 +19,6 @@ command continues the study where it stopped.
 from __future__ import annotations
 
 import math
-import os
 import shlex
 import subprocess
 import sys
@@ -136,13 +135,11 @@ def suggest(trial, args: Args) -> tuple[list[str], dict]:
     return flags + ["--seed", "0"], p
 
 
-def objective(trial, args: Args, threads: int) -> float:
+def objective(trial, args: Args) -> float:
     import optuna
-    import torch
 
     import train
 
-    torch.set_num_threads(threads)
     flags, params = suggest(trial, args)
     run_root = SWEEPS_DIR / args.name / "runs"
     argv = [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
@@ -189,7 +186,6 @@ def work(args: Args) -> None:
 
     storage = storage_for(args, args.name)
     study = make_study(args, storage)
-    threads = max(1, (os.cpu_count() or 1) // max(1, args.workers))
     n_grid = math.prod(len(v) for v in grid_space(args).values())
 
     while True:
@@ -217,7 +213,7 @@ def work(args: Args) -> None:
         def guarded(trial):
             if not args.search and _duplicate(study, trial):
                 raise optuna.TrialPruned("grid point already taken by another worker")
-            return objective(trial, args, threads)
+            return objective(trial, args)
 
         study.optimize(guarded, n_trials=1, catch=(ValueError,))
 

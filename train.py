@@ -54,6 +54,9 @@ class Args:
     """Seeds Python, numpy, torch and the environments."""
     device: str = "cpu"
     """Torch device (a 64x64 MLP runs fastest on the CPU)."""
+    torch_threads: int = 1
+    """Torch threads of the training process. One: while the policy acts, the env workers need
+    every other core, and idle torch threads spin on them (2 threads on 2 cores: 3-6x slower)."""
     env_kwargs: str = "{}"
     """JSON of env constructor arguments, applied over the preset's, e.g. '{"max_lead": 0.1}'."""
     vec_env: Literal["subproc", "batched", "dummy"] = "batched"
@@ -120,7 +123,8 @@ def resolve_config(args: Args) -> dict:
                 timesteps=int(timesteps), n_envs=args.n_envs, seed=args.seed, device=args.device,
                 vec_env=args.vec_env, n_workers=args.n_workers, eval_freq=args.eval_freq,
                 eval_steps=args.eval_steps, stop_below_cm=args.stop_below_cm,
-                checkpoint_freq=args.checkpoint_freq, **args.extra)
+                checkpoint_freq=args.checkpoint_freq, torch_threads=args.torch_threads,
+                **args.extra)
 
 
 def seed_everything(seed: int) -> None:
@@ -339,6 +343,9 @@ def train(args: Args, on_eval=None) -> Path:
         (run_dir / "command.txt").write_text(shlex.join([sys.executable, *sys.argv]) + "\n")
 
     seed_everything(config["seed"])
+    import torch
+
+    torch.set_num_threads(config.get("torch_threads", 1))  # runs from before the flag: 1
     vec = make_vec_env(config["env"], config["n_envs"], config["seed"], config["vec_env"],
                        config.get("n_workers", 0))
     logger = configure(str(run_dir / "tb"), ["tensorboard", "csv"])
