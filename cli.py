@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import tyro
+
+from atomicio import atomic_write
 
 
 @dataclass
@@ -151,15 +152,8 @@ def write_video(args: Args, seed: int, overrides: dict) -> None:
         frames, r = episode(act, f"{args.controller} seed {seed}")
         summary = f"{args.controller} {100 * r.error.mean():.2f} cm"
     out = Path(args.video)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".mp4", dir=out.parent)
-    os.close(fd)
-    try:
+    with atomic_write(out, ".tmp.mp4") as tmp:
         imageio.mimwrite(tmp, frames, fps=100 // every, macro_block_size=1)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     env.close()
     print(f"seed {seed} ({env.traj.shape}): mean error {summary}; wrote {out}")
 

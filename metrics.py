@@ -9,9 +9,7 @@ signed-rank p-value. Definitions are in the README section "metrics.py".
 
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +22,7 @@ from rich.table import Table
 from scipy import stats
 
 import rollout
+from atomicio import atomic_write
 from rollout import Rollout
 
 # (key, row label, number format), in table order.
@@ -269,15 +268,9 @@ def plot(cmp: Comparison, a: dict[int, Rollout], b: dict[int, Rollout], seeds: l
     bottom.set(xlabel="time (s)", ylabel="error (cm)", title="tracking error over time")
     bottom.legend(fontsize="small", ncol=2)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.png", dir=path.parent)
     try:
-        with os.fdopen(fd, "wb") as f:
+        with atomic_write(path, ".tmp.png") as tmp, open(tmp, "wb") as f:
             fig.savefig(f, format="png", dpi=120)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     finally:
         plt.close(fig)
     return path

@@ -9,12 +9,11 @@ Every write is atomic (temporary name, then rename).
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import tempfile
 import zipfile
 from pathlib import Path
 
+from atomicio import atomic_write
 from env import OBS_FEATURES, check_features
 
 ARCHIVE_DIR = Path("archive")
@@ -42,31 +41,16 @@ def git_commit() -> str:
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, sort_keys=True, default=str)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, ".tmp.json") as tmp, open(tmp, "w") as f:
+        json.dump(data, f, indent=2, sort_keys=True, default=str)
+        f.write("\n")
 
 
 def save_model(model, path: Path, sidecar: dict) -> Path:
     """Save an SB3 model and its sidecar atomically; the sidecar lands last."""
     path = Path(path).with_suffix(".zip")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.zip", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_write(path, ".tmp.zip") as tmp:
         model.save(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     rates = {"physics_hz": PHYSICS_HZ, "control_hz": CONTROL_HZ}
     full = {**sidecar, "rates": rates, "commit": sidecar.get("commit") or git_commit()}
     write_json_atomic(sidecar_path(path), full)

@@ -24,12 +24,12 @@ leaves a half file that a later command would trust.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from atomicio import atomic_write
 
 ROLLOUT_DIR = Path("rollouts")
 ARRAY_KEYS = (
@@ -82,17 +82,10 @@ def rollout_path(prefix: str, seed: int, root: Path = ROLLOUT_DIR) -> Path:
 def save(rollout: Rollout, path: Path) -> Path:
     """Write atomically: a temporary file in the same folder, then rename over the target."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {k: np.asarray(getattr(rollout, k)) for k in ARRAY_KEYS}
     arrays["meta"] = np.array(json.dumps(rollout.meta, sort_keys=True))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, ".tmp.npz") as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
     return path
 
 

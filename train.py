@@ -184,7 +184,8 @@ def evaluate(act_fn, env_kwargs: dict, steps: int, episodes=EVAL_SET) -> dict:
         r = record(e, act_fn, seed, shape)
         err = r.error
         returns.append(r.meta["return"])
-        per_shape.setdefault(shape, []).append((100 * err.mean(), 100 * (err < 0.05).mean()))
+        # Grouped by the shape actually played (a None in `episodes` means drawn from the seed).
+        per_shape.setdefault(r.meta["shape"], []).append((100 * err.mean(), 100 * (err < 0.05).mean()))
     e.close()
     out = {"mean_error_cm": float(np.mean([m for v in per_shape.values() for m, _ in v])),
            "in_band_pct": float(np.mean([b for v in per_shape.values() for _, b in v])),

@@ -156,3 +156,13 @@ def test_record_writes_one_row_per_step():
     np.testing.assert_allclose(r.t, np.arange(1, 51) * 0.01)
     assert r.meta["seed"] == 8 and r.meta["shape"] in trajectory.SHAPES
     assert r.meta["duration"] == pytest.approx(0.5)
+
+
+def test_evaluate_groups_drawn_shapes_by_the_shape_played():
+    import trajectory
+    from controllers import classical
+    from train import evaluate
+
+    res = evaluate(classical, {}, 20, episodes=[(0, None), (1, None), (2, "fly")])
+    played = {trajectory.sample(0).shape, trajectory.sample(1).shape, "fly"}
+    assert {k.split("/")[0] for k in res if "/" in k} == played

@@ -179,3 +179,23 @@ def test_soak_script_runs_clean():
               "--max-lead", "0.5", cwd=ROOT)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "NaNs 0, exceptions 0" in out.stdout and "PASS" in out.stdout
+
+
+def test_atomic_write_renames_on_success_and_leaves_nothing_on_error(tmp_path):
+    import os
+
+    from atomicio import atomic_write
+
+    target = tmp_path / "sub" / "model.json"
+    with atomic_write(target, ".tmp.json") as tmp, open(tmp, "w") as f:
+        f.write("{}")
+    assert target.read_text() == "{}"
+    # The final file gets ordinary permissions (0666 less the umask), not mkstemp's 0600.
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask
+    with pytest.raises(RuntimeError), atomic_write(target, ".tmp.json") as tmp:
+        Path(tmp).write_text("half")
+        raise RuntimeError("interrupted")
+    assert target.read_text() == "{}"  # the old file is untouched
+    assert sorted(p.name for p in target.parent.iterdir()) == ["model.json"]
