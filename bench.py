@@ -27,7 +27,7 @@ class Args:
     """Repeats per micro-benchmark (the median is reported)."""
     max_workers: int = 0
     """Largest worker count for the vectorised figures (0: the number of cores)."""
-    ppo_iterations: int = 2
+    ppo_iterations: int = 4
     """PPO iterations timed per configuration (after one warm-up iteration)."""
     quick: bool = False
     """Tiny budgets, for a smoke test of the script itself."""
