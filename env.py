@@ -194,7 +194,7 @@ class PandaLeadEnv(gym.Env):
         # feature just to use a few of them.
         core = self.core
         source = {
-            "ee_pos": lambda: core.data.site_xpos[core._tip], "ee_vel": lambda: self._ee_vel,
+            "ee_pos": lambda: core.tip_pos, "ee_vel": lambda: self._ee_vel,
             "target_pos": lambda: self._target_now[0], "target_vel": lambda: self._target_now[1],
             "target_acc": lambda: self._target_now[2], "joint_pos": lambda: core.qpos,
             "joint_vel": lambda: core.qvel, "prev_action": lambda: self._prev_action,
@@ -244,7 +244,8 @@ class PandaLeadEnv(gym.Env):
         self._target_now = core.target()
         target = self._target_now[0]
         ee = core.tip_pos
-        self._ee_vel = (ee - self._prev_ee) / self.dt
+        np.subtract(ee, self._prev_ee, out=self._ee_vel)  # in place: no arrays made per step
+        self._ee_vel /= self.dt
         self._prev_ee[:] = ee
         diff = ee - target
         dist = math.sqrt(diff @ diff)

@@ -138,6 +138,11 @@ class ArmCore:
         assert bad == list(range(bad[0], bad[0] + 4)), bad
         self._bad_warnings = self.data.warning.number[bad[0]:bad[0] + 4]
         self._jac_arm = self._jacp[:, :N_JOINTS]  # the arm's columns (all of them here: nv = 7)
+        # Live views into MjData, whose buffers never move: bound once, read every step (the
+        # tip position in the world, the arm's joint angles and velocities). Copy to keep.
+        self.tip_pos = self.data.site_xpos[self._tip]
+        self.qpos = self.data.qpos[:N_JOINTS]
+        self.qvel = self.data.qvel[:N_JOINTS]
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -161,7 +166,7 @@ class ArmCore:
             d.mocap_pos[self._mocap] = self.target_path[0][0]
         mujoco.mj_forward(m, d)
         self._kinematics_current = True
-        self._warnings_seen = self._bad_warning_count()
+        self._warnings_seen = self._bad_warning_state()
 
     @property
     def time(self) -> float:
@@ -174,18 +179,6 @@ class ArmCore:
         if k < len(pos):
             return pos[k], vel[k], acc[k]
         return tuple(np.asarray(a, dtype=float) for a in self.traj.at(k * self.dt))
-
-    @property
-    def tip_pos(self) -> np.ndarray:
-        return self.data.site_xpos[self._tip]
-
-    @property
-    def qpos(self) -> np.ndarray:
-        return self.data.qpos[:N_JOINTS]
-
-    @property
-    def qvel(self) -> np.ndarray:
-        return self.data.qvel[:N_JOINTS]
 
     # --- control ---------------------------------------------------------------------------
     def ik(self, target: np.ndarray, q0: np.ndarray | None = None, iters: int | None = None
@@ -248,7 +241,7 @@ class ArmCore:
             d.mocap_pos[self._mocap] = self.target_path[0][self.step_count]
         # MuJoCo resets the state itself on a NaN/huge position, velocity, acceleration or
         # control (and only warns); the warning counters and a finiteness check catch it.
-        self._warnings_seen = self._bad_warning_count()
+        self._warnings_seen = self._bad_warning_state()
         # q.q is NaN or inf exactly when some q is (or is astronomically large): one dot product
         # instead of a ufunc and a reduction.
         if self._warnings_seen != warnings_before or not math.isfinite(d.qpos @ d.qpos):
@@ -260,7 +253,7 @@ class ArmCore:
             mujoco.mj_comPos(m, d)
             self._kinematics_current = True
 
-    def _bad_warning_count(self) -> bytes:
+    def _bad_warning_state(self) -> bytes:
         """The counters as bytes: comparing two of these is cheaper than summing them."""
         return self._bad_warnings.tobytes()
 

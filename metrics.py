@@ -346,17 +346,17 @@ def main(args: Args) -> int:
             n = sum(1 for s in cmp.seeds if cmp.shapes[s] == shape)
             tables.append(metrics_table(rows, args.label_a, args.label_b, f"shape {shape} (n={n})"))
     for table in tables:
-        if args.markdown:
-            console.print(f"\n{table.title}" + (f" ({table.caption})" if table.caption else ""),
-                          markup=False, highlight=False)
-            table.title = table.caption = None
-            table.box = box.MARKDOWN
-            with console.capture() as captured:
-                console.print(table)
-            # rich pads the markdown box with blank rows of spaces: keep only the table lines
-            print("\n".join(ln.rstrip() for ln in captured.get().splitlines() if ln.strip()))
+        if not args.markdown:
+            console.print(table)
             continue
-        console.print(table)
+        console.print(f"\n{table.title}" + (f" ({table.caption})" if table.caption else ""),
+                      markup=False, highlight=False)
+        table.title = table.caption = None
+        table.box = box.MARKDOWN
+        with console.capture() as captured:
+            console.print(table)
+        # rich pads the markdown box with blank rows of spaces: keep only the table lines
+        print("\n".join(ln.rstrip() for ln in captured.get().splitlines() if ln.strip()))
     if args.plot:
         console.print(f"wrote {plot(cmp, a, b, plot_seeds, args.band_cm, args.plot)}", markup=False)
     return 0
