@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from core import analytic_lead
 from env import OBS_SCALE
-from ikpd import analytic_lead
 
 CONTROLLERS = ("classical", "analytic", "policy")
 # Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run ikpd.py --tune-tau`; see README.

@@ -13,7 +13,7 @@ import numpy as np
 from gymnasium import spaces
 
 import trajectory
-from ikpd import N_JOINTS, ArmCore, IKConfig, load_model, reachable
+from core import N_JOINTS, ArmCore, IKConfig, load_model, reachable
 from seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 
 # Observation features in their fixed order (a selection keeps this order) and their sizes.

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from ikpd import HOME_QPOS, N_JOINTS, ArmCore, reachable
+from core import HOME_QPOS, N_JOINTS, ArmCore, reachable
 
 
 class StaticTarget:

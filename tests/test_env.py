@@ -8,7 +8,7 @@ import pytest
 
 import env as env_mod
 import trajectory
-from ikpd import ArmCore
+from core import ArmCore
 from rollout import record
 
 
@@ -161,7 +161,7 @@ def test_record_writes_one_row_per_step():
 def test_evaluate_groups_drawn_shapes_by_the_shape_played():
     import trajectory
     from controllers import classical
-    from train import evaluate
+    from training import evaluate
 
     res = evaluate(classical, {}, 20, episodes=[(0, None), (1, None), (2, "fly")])
     played = {trajectory.sample(0).shape, trajectory.sample(1).shape, "fly"}

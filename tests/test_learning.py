@@ -17,7 +17,7 @@ def test_policy_beats_classical_on_circles_within_a_small_budget(tmp_path):
     from controllers import classical, make_policy
     from models import load_policy
     from seeds import EVAL_SET
-    from train import evaluate
+    from training import evaluate
 
     cmd = [sys.executable, str(ROOT / "train.py"), "--preset", "v1", "--timesteps", "150000",
            "--n-envs", "16", "--vec-env", "dummy", "--n-steps", "256", "--batch-size", "1024",

@@ -175,7 +175,7 @@ def test_ctrl_c_saves_a_resumable_model(tmp_path):
 
 
 def test_soak_script_runs_clean():
-    out = run(ROOT / "soak.py", "--steps", "4000", "--workers", "2", "--episode-steps", "300",
+    out = run(ROOT / "studies" / "soak.py", "--steps", "4000", "--workers", "2", "--episode-steps", "300",
               "--max-lead", "0.5", cwd=ROOT)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "NaNs 0, exceptions 0" in out.stdout and "PASS" in out.stdout

@@ -20,7 +20,7 @@ TINY = "--n-envs 2 --vec-env dummy --n-steps 64 --batch-size 64 --n-epochs 1 --e
 
 
 def sweep_cmd(*args):
-    return [sys.executable, str(ROOT / "sweep.py"), *map(str, args)]
+    return [sys.executable, str(ROOT / "studies" / "sweep.py"), *map(str, args)]
 
 
 def test_embedded_grid_runs_each_point_once_with_two_workers(tmp_path):

@@ -6,16 +6,20 @@ and the command, ready for the README. `--quick` shortens everything (for a smok
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# Studies import the pipeline, which lives at the repo root (nothing imports a study).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 import os
 import platform
 import shlex
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import tyro
@@ -48,7 +52,7 @@ def bench_physics(n: int, repeats: int) -> float:
     """Microseconds for 5 x mj_step of the scene (one env step's worth of physics)."""
     import mujoco
 
-    from ikpd import HOME_QPOS, load_model
+    from core import HOME_QPOS, load_model
 
     m = load_model()
     d = mujoco.MjData(m)
@@ -91,7 +95,7 @@ def bench_env(n: int, repeats: int) -> tuple[float, float]:
 
 def bench_vec(kind: str, n_envs: int, workers: int, seconds: float) -> float:
     """Env steps per second of a vectorised env stepping random actions."""
-    from train import make_vec_env
+    from training import make_vec_env
 
     vec = make_vec_env({}, n_envs, 0, kind, workers)
     vec.reset()
@@ -109,7 +113,7 @@ def bench_vec(kind: str, n_envs: int, workers: int, seconds: float) -> float:
 
 
 def reference() -> dict:
-    from train import REFERENCE_HPARAMS
+    from training import REFERENCE_HPARAMS
 
     return dict(REFERENCE_HPARAMS)
 
@@ -119,7 +123,7 @@ def bench_ppo(config: dict, iterations: int, torch_threads: int) -> float:
     import torch
     from stable_baselines3 import PPO
 
-    from train import make_vec_env
+    from training import make_vec_env
 
     torch.set_num_threads(torch_threads)
     vec = make_vec_env({}, config["n_envs"], 0, config["vec_env"], config.get("n_workers", 0))
@@ -155,7 +159,7 @@ def _tree_pss_mb(pid: int) -> float:
 def bench_memory(timesteps: int) -> tuple[float, float]:
     """Peak memory (MB, PSS) of `train.py` with its defaults, whole process tree; and wall s."""
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, str(Path(__file__).with_name("train.py")), "--timesteps",
+        cmd = [sys.executable, str(Path(__file__).resolve().parents[1] / "train.py"), "--timesteps",
                str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0"]
         t = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -171,7 +175,7 @@ def bench_memory(timesteps: int) -> tuple[float, float]:
 
 
 def repo_default() -> dict:
-    from train import Args as TrainArgs
+    from training import Args as TrainArgs
 
     a = TrainArgs()
     return dict(n_envs=a.n_envs, vec_env=a.vec_env, n_workers=a.n_workers, n_steps=a.n_steps,

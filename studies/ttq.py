@@ -10,13 +10,18 @@ itself. Only the evaluation set is used (never the test seeds).
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# Studies import the pipeline, which lives at the repo root (nothing imports a study).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+TRAIN_PY = Path(__file__).resolve().parents[1] / "train.py"
+
 import csv
 import statistics
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import tyro
 
@@ -53,7 +58,7 @@ class Args:
 
 def classical_eval_error() -> float:
     from controllers import classical
-    from train import evaluate
+    from training import evaluate
 
     return evaluate(classical, {}, 500)["mean_error_cm"]
 
@@ -76,7 +81,7 @@ def main() -> None:
     for name in args.candidates:
         for seed in args.seeds:
             out_dir = args.runs_dir / f"{name}__s{seed}__{int(time.time())}"
-            cmd = [sys.executable, "train.py", *CANDIDATES[name], *args.extra, "--seed",
+            cmd = [sys.executable, str(TRAIN_PY), *CANDIDATES[name], *args.extra, "--seed",
                    str(seed), "--timesteps", str(args.max_timesteps), "--eval-freq",
                    str(args.eval_freq), "--stop-below-cm", f"{threshold:.4f}", "--runs-dir",
                    str(out_dir), "--name", name, "--no-progress", "--checkpoint-freq",

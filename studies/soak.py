@@ -10,8 +10,13 @@ at random) and constant extremes, because those drive the arm hardest into itsel
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import sys
+from pathlib import Path
+
+# Studies import the pipeline, which lives at the repo root (nothing imports a study).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import multiprocessing as mp
 import time
 import traceback
 from dataclasses import dataclass

@@ -18,13 +18,17 @@ command continues the study where it stopped.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# Studies import the pipeline, which lives at the repo root (nothing imports a study).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 import math
 import shlex
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import tyro
 
@@ -138,14 +142,14 @@ def suggest(trial, args: Args) -> tuple[list[str], dict]:
 def objective(trial, args: Args) -> float:
     import optuna
 
-    import train
+    import training
 
     flags, params = suggest(trial, args)
     run_root = SWEEPS_DIR / args.name / "runs"
     argv = [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
             "--runs-dir", str(run_root), "--name", f"t{trial.number:04d}", "--no-progress",
             *shlex.split(args.train_args)]
-    targs = tyro.cli(train.Args, args=argv)
+    targs = tyro.cli(training.Args, args=argv)
     pruned = []
 
     def on_eval(step: int, res: dict) -> bool:
@@ -156,7 +160,7 @@ def objective(trial, args: Args) -> float:
         return True
 
     t0 = time.time()
-    run_dir = train.train(targs, on_eval=on_eval)
+    run_dir = training.train(targs, on_eval=on_eval)
     trial.set_user_attr("run_dir", str(run_dir))
     trial.set_user_attr("wall_time_s", round(time.time() - t0, 1))
     if pruned:
@@ -277,7 +281,7 @@ def archive(args: Args, name: str) -> None:
 
     import optuna
 
-    import train
+    import training
 
     study = optuna.load_study(study_name=name, storage=storage_for(args, name))
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
@@ -290,7 +294,7 @@ def archive(args: Args, name: str) -> None:
     best = min(done, key=lambda t: t.value)
     run_dir = Path(best.user_attrs["run_dir"])
     config = json.loads((run_dir / "config.json").read_text())
-    path = train.archive_model(run_dir, args.archive_as or name, config)
+    path = training.archive_model(run_dir, args.archive_as or name, config)
     print(f"best trial #{best.number} ({best.value:.2f} cm, {best.params}) -> {path}")
 
 

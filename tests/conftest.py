@@ -1,0 +1,18 @@
+"""Shared test helpers: the repo root and running one of its scripts as a user would."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_script(script, *args, cwd=None, env=None, check=False, **kwargs) -> subprocess.CompletedProcess:
+    """Run a repo script (path relative to the root) with this interpreter; text output."""
+    full_env = {**os.environ, **(env or {})}
+    cmd = [sys.executable, str(ROOT / script), *map(str, args)]
+    return subprocess.run(cmd, cwd=cwd or ROOT, env=full_env, capture_output=True, text=True,
+                          check=check, **kwargs)
