@@ -1,0 +1,39 @@
+"""User errors: one type, raised anywhere, caught only at the entry scripts.
+
+A ``UserError`` is a problem with what the user gave (a name, a number, a file): the entry
+prints it as one line and exits with status 2. Anything else is a bug and keeps its traceback,
+which is why ``UserError`` is not a ``ValueError`` (catching those would hide real bugs).
+"""
+
+from __future__ import annotations
+
+import difflib
+import sys
+from collections.abc import Callable, Iterable
+from functools import wraps
+
+
+class UserError(Exception):
+    """Bad input from the user: printed as one line, exit status 2."""
+
+
+def did_you_mean(name: object, valid: Iterable[str]) -> str:
+    """'; did you mean 'v5'? (valid: v1, v2, ...)': the tail of an unknown-name message."""
+    valid = list(valid)
+    close = difflib.get_close_matches(str(name), valid, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"{hint} (valid: {', '.join(valid)})"
+
+
+def exit_on_user_error(main: Callable) -> Callable:
+    """Wrap an entry point: a UserError becomes 'error: ...' on stderr and exit status 2."""
+
+    @wraps(main)
+    def run(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except UserError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+    return run
