@@ -104,11 +104,12 @@ def _build(args: Args, overrides: dict):
 
 
 def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
-    from rollout import record, rollout_path, save
+    from rollout import record_many, rollout_path, save
 
     env, act, meta, _ = _build(args, overrides)
-    for seed in seeds:
-        r = record(env, act, seed, args.shape, meta)
+    shapes = [args.shape] * len(seeds)
+    for r in record_many(env.cfg, act, seeds, shapes, meta):
+        seed = r.seed
         save(r, rollout_path(args.prefix, seed, args.rollouts_dir))
         note = f"  FAILED: {r.meta['failure']}" if r.meta.get("failure") else ""
         print(f"seed {seed:4d} {r.shape:6s} mean error {100 * r.error.mean():6.2f} cm{note}")
@@ -136,7 +137,7 @@ def write_video(args: Args, seed: int, overrides: dict) -> None:
         frames = []
 
         def grab(e):
-            if e.core.step_count % every == 0:
+            if e.core.step_count[0] % every == 0:
                 frames.append(_label(e.render(), label))
 
         r = record(env, act_fn, seed, args.shape, on_step=grab)
@@ -169,12 +170,14 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
     env, act, _, _ = _build(args, overrides)
     obs, _ = env.reset(seed=seed, options={"traj_seed": seed, **(
         {"shape": args.shape} if args.shape else {})})
-    with mujoco.viewer.launch_passive(env.core.model, env.core.data) as viewer:
+    data = env.core.get_data(0)
+    with mujoco.viewer.launch_passive(env.core.model, data) as viewer:
         done = False
         while viewer.is_running() and not done:
             start = time.perf_counter()
-            obs, _, term, trunc, info = env.step(act(obs, env))
+            obs, _, term, trunc, info = env.step(act(obs[None], env.task)[0])
             done = term or trunc
+            env.core.get_data(0, data)
             viewer.sync()
             time.sleep(max(0.0, env.dt - (time.perf_counter() - start)))
 
@@ -182,15 +185,15 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
 def tune_tau(args: Args, overrides: dict) -> None:
     import controllers
     import env as env_mod
-    from rollout import record
+    from rollout import record_many
     from seeds import TUNE_SEEDS
 
-    env = env_mod.PandaLeadEnv(**overrides, episode_steps=int(round(args.duration * 100)))
+    config = env_mod.EnvConfig.from_dict({**overrides, "episode_steps": int(round(args.duration * 100))})
     print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")
     best = None
     for tau in np.round(np.arange(0.0, 0.1001, 0.01), 3):
         act = controllers.make_analytic(float(tau))
-        err = np.mean([record(env, act, s).error.mean() for s in TUNE_SEEDS]) * 100
+        err = np.mean([r.error.mean() for r in record_many(config, act, TUNE_SEEDS)]) * 100
         print(f"tau {tau:.2f} s: mean error {err:.2f} cm")
         if best is None or err < best[1]:
             best = (float(tau), err)

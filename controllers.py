@@ -1,4 +1,4 @@
-"""The three controllers as action functions ``act(obs, env) -> action in [-1, 1]^3``.
+"""The three controllers as batched action functions ``act(obs, task) -> (N, 3) in [-1, 1]``.
 
 All three drive the same env (and so the same IK+PD core); only the lead differs:
 classical = zero lead; analytic = ``v*tau + a*tau^2/2`` from the *observed* target velocity
@@ -16,31 +16,32 @@ CONTROLLERS = ("classical", "analytic", "policy")
 # Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run ikpd.py --tune-tau`; see README.
 DEFAULT_TAU = 0.04
 
-_ZERO = np.zeros(3, dtype=np.float32)
 
-
-def classical(obs, env) -> np.ndarray:
-    return _ZERO
+def classical(obs, task) -> np.ndarray:
+    return np.zeros((len(obs), 3), dtype=np.float32)
 
 
 def make_analytic(tau: float = DEFAULT_TAU):
-    def act(obs, env) -> np.ndarray:
-        env = env.unwrapped
-        slices = {f: slice(a, b) for f, a, b in env._layout}
-        _, true_vel, true_acc = env.core.target()
-        # The observation is scaled (env.OBS_SCALE); undo that to get m/s and m/s^2.
-        vel = obs[slices["target_vel"]] * OBS_SCALE["target_vel"] if "target_vel" in slices \
+    def act(obs, task) -> np.ndarray:
+        max_lead = task.config.max_lead
+        if max_lead == 0:
+            return classical(obs, task)
+        slices = {f: slice(a, b) for f, a, b in task.layout}
+        _, true_vel, true_acc = task.core.target()
+        # The observation is scaled (env.OBS_SCALE); undo that to get m/s and m/s^2. The lead
+        # is computed from what the controller observes, so observation noise reaches it.
+        vel = obs[:, slices["target_vel"]] * OBS_SCALE["target_vel"] if "target_vel" in slices \
             else true_vel
-        acc = obs[slices["target_acc"]] * OBS_SCALE["target_acc"] if "target_acc" in slices \
+        acc = obs[:, slices["target_acc"]] * OBS_SCALE["target_acc"] if "target_acc" in slices \
             else true_acc
-        lead = analytic_lead(np.asarray(vel, float), np.asarray(acc, float), tau, env.max_lead)
-        return (lead / env.max_lead).astype(np.float32) if env.max_lead > 0 else _ZERO
+        lead = analytic_lead(np.asarray(vel, float), np.asarray(acc, float), tau, max_lead)
+        return (lead / max_lead).astype(np.float32)
 
     return act
 
 
 def make_policy(model, deterministic: bool = True):
-    def act(obs, env) -> np.ndarray:
+    def act(obs, task) -> np.ndarray:
         action, _ = model.predict(obs, deterministic=deterministic)
         return action
 

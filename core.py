@@ -1,26 +1,33 @@
-"""The shared IK+PD core, and the classical baselines built on it.
+"""The IK+PD core, batched: N Panda arms in one `mujoco.batch.Batch`, one control law for all.
 
-Every controller in this repo runs on `ArmCore`: damped-least-squares IK on the tip site's
-position Jacobian, warm-started from the current joint angles, feeding MuJoCo position
+Every controller in this repo runs on `ArmBatch`: damped-least-squares IK on the tip site's
+position Jacobian, warm-started from the measured joint angles, feeding MuJoCo position
 actuators (a joint PD at the 500 Hz physics rate) with gravity compensation on every link.
 The classical controller is this core with a zero lead; the analytic-lead baseline adds
 ``v*tau + a*tau^2/2``; the learned policy adds its own lead. Nothing else differs.
 
+Why batched: MuJoCo's Batch steps all N simulations on its own threads with the GIL released,
+and the IK below is a handful of numpy calls over (N, 3, 7) arrays, so one process keeps every
+core busy and the per-env Python cost is paid once per batch, not once per env. Batch steps
+each simulation exactly as a loop of mj_step would, at any thread count, and the numpy maths
+is row by row, so an arm's episode is the same whether it runs alone (N=1) or among many.
+
 Why IK runs once per control step (100 Hz) and not at 500 Hz: the IK target only changes when
 the lead (an action) or the sampled target changes, both at the control rate; between those
-the PD converges on the joint goal. A second DLS iteration per control step buys little
-(see README), so one iteration from the measured joint angles is the default.
+the PD converges on the joint goal. One DLS iteration from the measured angles is the default.
 
-The classical baseline's command line is the thin script ``ikpd.py``; nothing here imports
-anything above this module.
+Call order per control step (`ArmBatch.step`): IK from the current kinematics -> write the
+joint goals to ctrl -> `Batch.rollout` of the substeps, recording the contact sensors after
+each substep (so a touch in any substep counts) -> `forward(stage=POS)` so the tip position
+and the next Jacobian are those of the state the step ends in -> move the target marker.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import math
 import os
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
@@ -32,6 +39,7 @@ if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco  # noqa: E402
+import mujoco.batch  # noqa: E402
 import numpy as np  # noqa: E402
 
 import trajectory  # noqa: E402
@@ -39,8 +47,7 @@ import trajectory  # noqa: E402
 ASSETS = Path(__file__).resolve().parent / "assets"
 SCENE_XML = ASSETS / "scene.xml"
 N_JOINTS = 7
-HOME_QPOS = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
-CONTROL_SUBSTEPS = 5  # 500 Hz physics, 100 Hz control
+CONTROL_SUBSTEPS = 5  # physics steps per control step: 500 Hz physics (MJCF timestep), 100 Hz control
 # A target is reachable when it is inside the reach sphere and above the floor margin (the
 # geometry lives in trajectory.py, which samples against it; the sphere's radius is measured:
 # max |tip - shoulder| over 20k random configurations is 0.947 m) and not inside the base
@@ -64,18 +71,28 @@ def _mesh_assets() -> dict[str, bytes]:
     return {name: path.read_bytes() for name, path in files.items()}
 
 
-_MODEL_CACHE: dict[str, mujoco.MjModel] = {}
-
-
+@cache
 def load_model() -> mujoco.MjModel:
     """The scene with the Panda, compiled once per process (compiling the meshes takes ~0.3 s)."""
-    if "scene" not in _MODEL_CACHE:
-        _MODEL_CACHE["scene"] = mujoco.MjModel.from_xml_path(str(SCENE_XML), _mesh_assets())
-    return _MODEL_CACHE["scene"]
+    return mujoco.MjModel.from_xml_path(str(SCENE_XML), _mesh_assets())
+
+
+@cache
+def home_qpos() -> np.ndarray:
+    """The arm's home pose: the MJCF keyframe "home" (Franka's ready pose)."""
+    m = load_model()
+    q = m.key("home").qpos[:N_JOINTS].copy()
+    q.flags.writeable = False
+    return q
+
+
+def control_dt(substeps: int = CONTROL_SUBSTEPS) -> float:
+    """Seconds per control step: the MJCF physics timestep times the substeps."""
+    return float(load_model().opt.timestep) * substeps
 
 
 def reachable(pos: np.ndarray) -> np.ndarray | bool:
-    """Whether the tip can reach a position (or each row of an (N, 3) array)."""
+    """Whether the tip can reach a position (or each row of an (..., 3) array)."""
     p = np.asarray(pos, dtype=float)
     in_column = (np.linalg.norm(p[..., :2], axis=-1) < BASE_COLUMN_RADIUS) & (
         p[..., 2] < BASE_COLUMN_TOP
@@ -102,178 +119,190 @@ class IKConfig:
     limit_margin: float = 0.02
     """Joint goals stay this far (rad) inside the joint limits."""
 
+    def __post_init__(self):
+        if not (self.iters >= 1 and self.damping >= 0 and self.max_step > 0):
+            raise ValueError(f"IKConfig needs iters >= 1, damping >= 0, max_step > 0: {self}")
 
-class ArmCore:
-    """The Panda plus its controller: ``step(lead)`` is one 100 Hz control step.
 
-    A trajectory is played back from arrays precomputed at reset (positions, velocities and
-    accelerations at every control step), so a step does no trajectory maths.
+# Sensor layout (assets/scene.xml): self_contact (found, mindist), floor_contact (found).
+_SELF_FOUND, _SELF_DIST, _FLOOR_FOUND = 0, 1, 2
+_UNSTABLE_WARNINGS = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
+                                       mujoco.mjtWarning.mjWARN_BADQVEL,
+                                       mujoco.mjtWarning.mjWARN_BADQACC,
+                                       mujoco.mjtWarning.mjWARN_BADCTRL)]
+
+
+class ArmBatch:
+    """N Pandas and their controller: ``step(lead)`` is one 100 Hz control step of all of them.
+
+    State is per arm, in (N, ...) arrays: ``tip_pos``, ``qpos``, ``qvel`` (live views, updated
+    in place by each step: copy to keep), ``step_count``, and after each step the flags
+    ``self_collision``, ``collision_depth`` (m), ``floor_contact`` and ``unstable``. Each arm
+    plays its own target path, precomputed at its reset (positions, velocities, accelerations
+    at every control step), so a step does no trajectory maths.
     """
 
-    def __init__(self, model: mujoco.MjModel | None = None, ik: IKConfig = IKConfig(),
-                 substeps: int = CONTROL_SUBSTEPS):
-        self.model = model if model is not None else load_model()
-        self.data = mujoco.MjData(self.model)
-        self._ik_data = mujoco.MjData(self.model)  # scratch kinematics for IK iterations
+    def __init__(self, n: int, ik: IKConfig = IKConfig(), substeps: int = CONTROL_SUBSTEPS,
+                 nthread: int = 0):
+        if n < 1:
+            raise ValueError(f"an ArmBatch needs at least one arm, got n={n}")
+        self.model = m = load_model()
+        self.n = n
         self.ik_config = ik
         self.substeps = int(substeps)
-        self.dt = self.model.opt.timestep * self.substeps
-        m = self.model
+        self.dt = control_dt(self.substeps)
+        self.batch = b = mujoco.batch.Batch(m, nsim=n, nthread=nthread, persistent=True)
+        self._home_key = m.key("home").id
         self._tip = m.site("tip").id
-        self._mocap = m.body("target").mocapid[0]
+        self._tip_body = int(m.site_bodyid[self._tip])
         self._lo = m.jnt_range[:N_JOINTS, 0] + ik.limit_margin
         self._hi = m.jnt_range[:N_JOINTS, 1] - ik.limit_margin
-        self._jacp = np.zeros((3, m.nv))
+        self._home = home_qpos()
         self._damp3 = np.eye(3) * ik.damping**2
         self._eps3 = np.eye(3) * 1e-10
-        self._chol, self._sol = np.zeros((3, 3)), np.zeros(3)
-        arm_bodies = {m.body(f"link{i}").id for i in range(8)} | {m.body("hand").id}
-        self._is_arm_geom = np.array([m.geom_bodyid[g] in arm_bodies for g in range(m.ngeom)])
-        # MuJoCo counts each kind of warning in d.warning; a live numpy view of the counters of
-        # the "simulation is unstable" kinds (contiguous in mjtWarning) costs one slice a step.
-        w = mujoco.mjtWarning
-        bad = sorted(int(x) for x in (w.mjWARN_BADQPOS, w.mjWARN_BADQVEL, w.mjWARN_BADQACC,
-                                      w.mjWARN_BADCTRL))
-        assert bad == list(range(bad[0], bad[0] + 4)), bad
-        self._bad_warnings = self.data.warning.number[bad[0]:bad[0] + 4]
-        self._jac_arm = self._jacp[:, :N_JOINTS]  # the arm's columns (all of them here: nv = 7)
-        # Live views into MjData, whose buffers never move: bound once, read every step (the
-        # tip position in the world, the arm's joint angles and velocities). Copy to keep.
-        self.tip_pos = self.data.site_xpos[self._tip]
-        self.qpos = self.data.qpos[:N_JOINTS]
-        self.qvel = self.data.qvel[:N_JOINTS]
+        # Live (N, ...) views into the batch (bound once; the batch never moves them).
+        self.qpos = b.bind("qpos")[:, :N_JOINTS]
+        self.qvel = b.bind("qvel")[:, :N_JOINTS]
+        self._ctrl = b.bind("ctrl")
+        self._mocap = b.bind("mocap_pos")[:, m.body("target").mocapid[0]]
+        self.tip_pos = b.bind("site_xpos")[:, self._tip]
+        self._contacts = {"sensordata": np.zeros((n, self.substeps, m.nsensordata))}
+        self._arange = np.arange(n)
+        self.step_count = np.zeros(n, dtype=np.int64)
+        self.self_collision = np.zeros(n, dtype=bool)
+        self.collision_depth = np.zeros(n)
+        self.floor_contact = np.zeros(n, dtype=bool)
+        self.unstable = np.zeros(n, dtype=bool)
+        self.q_goal = np.tile(self._home, (n, 1))
+        self._scratch = None  # a second batch for IK iterations away from the measured q
+        self.target_pos = self.target_vel = self.target_acc = None
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
-    def reset(self, traj=None, n_steps: int = 0, qpos: np.ndarray | None = None) -> None:
-        """Restore every piece of state: arm, actuator goals, IK warm start, target, clock."""
-        m, d = self.model, self.data
-        mujoco.mj_resetData(m, d)
-        q0 = HOME_QPOS if qpos is None else np.asarray(qpos, dtype=float)
-        d.qpos[:N_JOINTS] = q0
-        d.ctrl[:N_JOINTS] = q0
-        self.q_goal = q0.copy()
-        self.step_count = 0
-        self.traj = traj
-        self.unstable = False
-        self.self_collision = False
-        self.collision_depth = 0.0
-        self.floor_contact = False
-        if traj is not None:
-            times = np.arange(n_steps + 1) * self.dt
-            self.target_path = tuple(np.array(a, dtype=float) for a in traj.at(times))
-            d.mocap_pos[self._mocap] = self.target_path[0][0]
-        mujoco.mj_forward(m, d)
-        self._kinematics_current = True
-        self._warnings_seen = self._bad_warning_state()
+    def reset(self, ids=None, trajs=None, n_steps: int = 0, qpos: np.ndarray | None = None):
+        """Restore every piece of state of arms ``ids`` (default all): arm, actuator goals, IK
+        warm start, target path and marker, clock, flags. ``trajs``: one trajectory per id."""
+        ids = self._arange if ids is None else np.asarray(ids, dtype=np.int64).reshape(-1)
+        b = self.batch
+        b.reset(ids, keyframe=self._home_key, stage=mujoco.mjtStage.mjSTAGE_NONE)
+        q0 = self._home if qpos is None else np.asarray(qpos, dtype=float)
+        self.qpos[ids] = q0
+        self._ctrl[ids, :N_JOINTS] = q0
+        self.q_goal[ids] = q0
+        self.step_count[ids] = 0
+        for flag in (self.self_collision, self.collision_depth, self.floor_contact, self.unstable):
+            flag[ids] = 0
+        if trajs is not None:
+            self._set_paths(ids, trajs, n_steps)
+            self._mocap[ids] = self.target_pos[ids, 0]
+        b.forward(ids)
+        self._warnings = b.warning[:, _UNSTABLE_WARNINGS, 1].copy()
+
+    def _set_paths(self, ids: np.ndarray, trajs, n_steps: int) -> None:
+        steps = n_steps + 1
+        if self.target_pos is None or self.target_pos.shape[1] != steps:
+            if self.target_pos is not None and len(ids) != self.n:
+                raise ValueError(f"every arm's path has {self.target_pos.shape[1] - 1} steps; "
+                                 f"reset all arms to change it to {n_steps}")
+            self.target_pos, self.target_vel, self.target_acc = (
+                np.zeros((self.n, steps, 3)) for _ in range(3))
+        times = np.arange(steps) * self.dt
+        for i, traj in zip(ids, trajs, strict=True):
+            pos, vel, acc = traj.at(times)
+            self.target_pos[i], self.target_vel[i], self.target_acc[i] = pos, vel, acc
 
     @property
-    def time(self) -> float:
+    def time(self) -> np.ndarray:
         return self.step_count * self.dt
 
-    def target(self, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(pos, vel, acc) of the target at control step k (default: now)."""
-        k = self.step_count if k is None else k
-        pos, vel, acc = self.target_path
-        if k < len(pos):
-            return pos[k], vel[k], acc[k]
-        return tuple(np.asarray(a, dtype=float) for a in self.traj.at(k * self.dt))
+    def target(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pos, vel, acc) of every arm's target now, (N, 3) each."""
+        i, k = self._arange, self._path_index()
+        return self.target_pos[i, k], self.target_vel[i, k], self.target_acc[i, k]
+
+    def _path_index(self) -> np.ndarray:
+        """Each arm's row of its path: its step, held at the last row if stepped past it (a
+        vector env steps a finished arm once before resetting it)."""
+        return np.minimum(self.step_count, self.target_pos.shape[1] - 1)
 
     # --- control ---------------------------------------------------------------------------
     def ik(self, target: np.ndarray, q0: np.ndarray | None = None, iters: int | None = None
            ) -> np.ndarray:
-        """DLS IK for the tip position, warm-started from q0 (default: the measured angles)."""
-        m, cfg = self.model, self.ik_config
-        q = (self.data.qpos[:N_JOINTS] if q0 is None else q0).copy()
-        jacp, jac = self._jacp, self._jac_arm
-        for i in range(cfg.iters if iters is None else iters):
-            if i == 0 and q0 is None and self._kinematics_current:
-                d = self.data  # its kinematics are those of the measured q already
+        """DLS IK for every arm's tip, (N, 3) targets -> (N, 7) joint goals, warm-started from
+        q0 (default: the measured angles, whose kinematics are current)."""
+        cfg = self.ik_config
+        iters = cfg.iters if iters is None else iters
+        q = (self.qpos if q0 is None else np.broadcast_to(q0, (self.n, N_JOINTS))).copy()
+        for i in range(iters):
+            if i == 0 and q0 is None:
+                jac, _ = self.batch.jac(self._tip_body, self.tip_pos)
+                tip = self.tip_pos
             else:
-                d = self._ik_data
-                d.qpos[:N_JOINTS] = q
-                mujoco.mj_kinematics(m, d)
-                mujoco.mj_comPos(m, d)
-            mujoco.mj_jacSite(m, d, jacp, None, self._tip)
-            err = target - d.site_xpos[self._tip]
+                jac, tip = self._kinematics_at(q)
+            jac = jac[:, :, :N_JOINTS]
+            jac_t = jac.transpose(0, 2, 1)
+            err = target - tip
             # Damped step J^T (J J^T + l^2 I)^-1 e, and the posture pull projected by the exact
             # null-space projector I - J^T (J J^T)^-1 J (a damped projector would leak the pull
             # into the tip position and bias the solution by centimetres near singularities).
-            # 3x3 Cholesky solves through MuJoCo's own routines: a third of an SVD's cost.
-            jjt = jac @ jac.T
-            chol, sol = self._chol, self._sol
-            np.add(jjt, self._damp3, out=chol)
-            mujoco.mju_cholFactor(chol, 0.0)
-            mujoco.mju_cholSolve(sol, chol, err)
-            dq = jac.T @ sol
+            jjt = jac @ jac_t
+            dq = (jac_t @ np.linalg.solve(jjt + self._damp3, err[:, :, None]))[:, :, 0]
             if cfg.nullspace_gain:
-                pull = cfg.nullspace_gain * (HOME_QPOS - q)
-                np.add(jjt, self._eps3, out=chol)
-                mujoco.mju_cholFactor(chol, 1e-12)
-                mujoco.mju_cholSolve(sol, chol, jac @ pull)
-                dq += pull - jac.T @ sol
-            peak = np.abs(dq).max()
-            if peak > cfg.max_step:
-                dq *= cfg.max_step / peak
+                pull = cfg.nullspace_gain * (self._home - q)
+                inner = np.linalg.solve(jjt + self._eps3, (jac @ pull[:, :, None]))
+                dq += pull - (jac_t @ inner)[:, :, 0]
+            peak = np.abs(dq).max(axis=1, keepdims=True)
+            dq *= np.minimum(1.0, cfg.max_step / np.maximum(peak, 1e-300))
             q += dq
-            np.minimum(np.maximum(q, self._lo, out=q), self._hi, out=q)
+            np.clip(q, self._lo, self._hi, out=q)
         return q
 
+    def _kinematics_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tip Jacobians and positions at joint angles q, from a scratch batch (state untouched)."""
+        if self._scratch is None:
+            self._scratch = mujoco.batch.Batch(self.model, nsim=self.n, nthread=self.batch.nthread,
+                                               persistent=True)
+            self._scratch_qpos = self._scratch.bind("qpos")
+            self._scratch_tip = self._scratch.bind("site_xpos")[:, self._tip]
+        self._scratch_qpos[:, :N_JOINTS] = q
+        self._scratch.forward(stage=mujoco.mjtStage.mjSTAGE_POS)
+        jac, _ = self._scratch.jac(self._tip_body, self._scratch_tip)
+        return jac, self._scratch_tip.copy()
+
     def step(self, lead: np.ndarray | None = None) -> None:
-        """One control step: IK on (target + lead), then the PD runs for `substeps` physics steps."""
-        m, d = self.model, self.data
+        """One control step of every arm: IK on (target + lead), then the PD for the substeps."""
         target = self.target()[0]
-        ik_target = target if lead is None else target + lead
-        self.q_goal = self.ik(ik_target)
-        d.ctrl[:N_JOINTS] = self.q_goal
-        self.self_collision = False
-        self.collision_depth = 0.0
-        self.floor_contact = False
-        warnings_before = self._warnings_seen
-        self._kinematics_current = False
-        for _ in range(self.substeps):
-            mujoco.mj_step(m, d)
-            if d.ncon:
-                self._scan_contacts()
+        self.q_goal = self.ik(target if lead is None else target + lead)
+        self._ctrl[:, :N_JOINTS] = self.q_goal
+        b = self.batch
+        sensors = b.rollout(self.substeps, record=("sensordata",), out=self._contacts)["sensordata"]
+        b.forward(stage=mujoco.mjtStage.mjSTAGE_POS)
         self.step_count += 1
-        if self.step_count < len(self.target_path[0]):
-            d.mocap_pos[self._mocap] = self.target_path[0][self.step_count]
-        # MuJoCo resets the state itself on a NaN/huge position, velocity, acceleration or
-        # control (and only warns); the warning counters and a finiteness check catch it.
-        self._warnings_seen = self._bad_warning_state()
-        # q.q is NaN or inf exactly when some q is (or is astronomically large): one dot product
-        # instead of a ufunc and a reduction.
-        if self._warnings_seen != warnings_before or not math.isfinite(d.qpos @ d.qpos):
-            self.unstable = True
-        else:
-            # mj_step leaves positions of the substep's start: refresh them (and the COM
-            # quantities the next IK Jacobian needs) for the state the step ends in.
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            self._kinematics_current = True
+        self._mocap[:] = self.target_pos[self._arange, self._path_index()]
+        # Contact sensors, recorded after every substep: any touch in the step counts.
+        found = sensors[:, :, _SELF_FOUND] > 0
+        self.self_collision = found.any(axis=1)
+        self.collision_depth = np.where(found, -sensors[:, :, _SELF_DIST], 0.0).max(axis=1)
+        self.floor_contact = (sensors[:, :, _FLOOR_FOUND] > 0).any(axis=1)
+        # MuJoCo resets a simulation itself on a NaN/huge position, velocity, acceleration or
+        # control (and only warns); a rise in those warning counters marks the arm unstable.
+        warnings = b.warning[:, _UNSTABLE_WARNINGS, 1]
+        self.unstable = (warnings != self._warnings).any(axis=1) | ~np.isfinite(self.qpos).all(1)
+        self._warnings = warnings.copy()
 
-    def _bad_warning_state(self) -> bytes:
-        """The counters as bytes: comparing two of these is cheaper than summing them."""
-        return self._bad_warnings.tobytes()
+    # --- inspection --------------------------------------------------------------------------
+    def get_data(self, i: int = 0, data: mujoco.MjData | None = None) -> mujoco.MjData:
+        """Arm i's whole MjData (for rendering, the viewer and inspection)."""
+        return self.batch.get_data(i, data)
 
-    def _scan_contacts(self) -> None:
-        con = self.data.contact
-        g1, g2 = con.geom1, con.geom2
-        arm1, arm2 = self._is_arm_geom[g1], self._is_arm_geom[g2]
-        both = arm1 & arm2
-        if both.any():
-            self.self_collision = True
-            self.collision_depth = max(self.collision_depth, float(-con.dist[both].min()))
-        if (arm1 ^ arm2).any():
-            self.floor_contact = True
-
-    def contact_pairs(self) -> list[tuple[str, str, float]]:
-        """Which arm bodies touch each other now, and how deep (m). For inspection and tests."""
-        m, d = self.model, self.data
-        mujoco.mj_collision(m, d)
+    def contact_pairs(self, i: int = 0) -> list[tuple[str, str, float]]:
+        """Which arm bodies of arm i touch each other now, and how deep (m). For tests."""
+        m = self.model
+        d = self.get_data(i)
+        mujoco.mj_forward(m, d)
         pairs = []
         for c in d.contact[: d.ncon]:
-            if self._is_arm_geom[c.geom1] and self._is_arm_geom[c.geom2]:
-                b1, b2 = m.body(m.geom_bodyid[c.geom1]).name, m.body(m.geom_bodyid[c.geom2]).name
-                pairs.append((b1, b2, float(-c.dist)))
+            b1, b2 = m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]
+            if b1 != 0 and b2 != 0:  # every collision geom but the floor belongs to the arm
+                pairs.append((m.body(b1).name, m.body(b2).name, float(-c.dist)))
         return pairs

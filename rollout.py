@@ -122,47 +122,87 @@ def load_prefix(prefix: str, root: Path = ROLLOUT_DIR) -> dict[int, Rollout]:
     return {r.seed: r for r in rollouts}
 
 
+def record_many(config, act_fn, seeds, shapes=None, meta: dict | None = None,
+                nthread: int = 0, batch_size: int = 256) -> list[Rollout]:
+    """Play one episode per trajectory seed, all at once (``batch_size`` arms per batch), and
+    record each: the one code path every controller, evaluation and rollout set uses.
+
+    ``act_fn(obs, task) -> actions`` decides each step for all arms ((N, obs) -> (N, 3));
+    ``config`` is an env.EnvConfig (or its dict). Slot i's generator is seeded with its
+    trajectory seed, as ``env.reset(seed=traj_seed)`` seeds the single env, so an episode is
+    the same whether it is played alone, in a batch, or through ``record``.
+    """
+    from env import LeadTask, _as_config
+
+    config = _as_config(config, {})
+    seeds = [int(s) for s in seeds]
+    shapes = [None] * len(seeds) if shapes is None else list(shapes)
+    out: list[Rollout] = []
+    task = None
+    for start in range(0, len(seeds), batch_size):
+        chunk, chunk_shapes = seeds[start:start + batch_size], shapes[start:start + batch_size]
+        if task is None or task.n != len(chunk):
+            task = LeadTask(config, len(chunk), nthread=nthread)
+        task.rngs = [np.random.default_rng(s) for s in chunk]
+        obs = task.reset(None, chunk, chunk_shapes)
+        out += _play(task, obs, act_fn, meta)
+    return out
+
+
 def record(env, act_fn, traj_seed: int, shape: str | None = None, meta: dict | None = None,
            on_step=None) -> Rollout:
-    """Run one episode of a PandaLeadEnv and record it: the one code path every controller uses.
-
-    ``act_fn(obs, env) -> action`` decides each step (zeros for the classical controller).
-    ``env`` is the unwrapped env; ``on_step(env)`` is called after each step (for rendering).
-    """
+    """One episode of a single PandaLeadEnv (the viewer and videos use it; ``on_step(env)`` is
+    called after each step, e.g. to render). Same episode as ``record_many`` on this seed."""
     options = {"traj_seed": int(traj_seed)}
     if shape is not None:
         options["shape"] = shape
-    obs, info = env.reset(seed=int(traj_seed), options=options)
-    core = env.core
+    env = env.unwrapped
+    obs, _ = env.reset(seed=int(traj_seed), options=options)
+    hook = None if on_step is None else (lambda _task: on_step(env))
+    return _play(env.task, obs[None], act_fn, meta, hook)[0]
+
+
+def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
+    """Step every slot of a freshly reset task until each episode ends; one Rollout per slot."""
+    core, n = task.core, task.n
     rows: dict[str, list] = {k: [] for k in ARRAY_KEYS}
-    failure = None
-    episode_return = 0.0
-    while True:
-        obs, reward, terminated, truncated, info = env.step(act_fn(obs, env))
+    end = np.full(n, -1)
+    failure: list[str | None] = [None] * n
+    returns = np.zeros(n)
+    k = 0
+    while (end < 0).any():
+        obs, reward, terminated, truncated, info = task.step(act_fn(obs, task))
         pos, vel, acc = core.target()
-        episode_return += float(reward)
-        rows["t"].append(core.time)
+        live = end < 0
+        returns[live] += reward[live]
+        rows["t"].append(core.time.copy())
         rows["ee_pos"].append(core.tip_pos.copy())
         rows["target_pos"].append(pos)
         rows["target_vel"].append(vel)
         rows["target_acc"].append(acc)
-        rows["lead"].append(info["lead"])
+        rows["lead"].append(info["lead"].copy())
         rows["qpos"].append(core.qpos.copy())
         rows["qvel"].append(core.qvel.copy())
-        rows["self_collision"].append(info["self_collision"])
-        rows["collision_depth"].append(info["collision_depth"])
-        rows["reachable"].append(info["reachable"])
+        rows["self_collision"].append(info["self_collision"].copy())
+        rows["collision_depth"].append(info["collision_depth"].copy())
+        rows["reachable"].append(info["reachable"].copy())
         if on_step is not None:
-            on_step(env)
-        if terminated or truncated:
-            failure = info.get("failure")
-            break
-    arrays = {k: np.asarray(v) for k, v in rows.items()}
-    arrays["self_collision"] = arrays["self_collision"].astype(bool)
-    arrays["reachable"] = arrays["reachable"].astype(bool)
-    full_meta = {
-        "seed": int(traj_seed), "shape": env.traj.shape, "dt": env.dt,
-        "duration": round(env.config["episode_steps"] * env.dt, 6),
-        "env": env.config, "failure": failure, "return": episode_return, **(meta or {}),
-    }
-    return Rollout(**arrays, meta=full_meta)
+            on_step(task)
+        for i in np.flatnonzero(live & (terminated | truncated)):
+            end[i] = k + 1
+            if terminated[i]:
+                failure[i] = "unstable" if info["unstable"][i] else "self_collision"
+        k += 1
+    stacked = {key: np.stack(v, axis=1) for key, v in rows.items()}  # (N, T, ...)
+    stacked["self_collision"] = stacked["self_collision"].astype(bool)
+    stacked["reachable"] = stacked["reachable"].astype(bool)
+    config = task.config.to_dict()
+    out = []
+    for i in range(n):
+        full_meta = {
+            "seed": int(task.traj_seeds[i]), "shape": task.shapes[i], "dt": task.dt,
+            "duration": round(task.config.episode_steps * task.dt, 6), "env": config,
+            "failure": failure[i], "return": float(returns[i]), **(meta or {}),
+        }
+        out.append(Rollout(**{key: v[i, :end[i]] for key, v in stacked.items()}, meta=full_meta))
+    return out

@@ -59,10 +59,11 @@ class Args:
     env_kwargs: str = "{}"
     """JSON of env constructor arguments, applied over the preset's, e.g. '{"max_lead": 0.1}'."""
     vec_env: Literal["subproc", "batched", "dummy"] = "batched"
-    """subproc: SB3 SubprocVecEnv (a process per env); batched: --n-workers processes each
-    stepping a batch of envs (vecenv.py); dummy: all envs in this process."""
+    """batched: all envs in one mujoco.batch.Batch in this process (vecenv.py); subproc: SB3
+    SubprocVecEnv, a process per env (the reference configuration); dummy: a loop of single
+    envs in this process."""
     n_workers: int = 0
-    """Worker processes for --vec-env batched (0: one per CPU core, at most n_envs)."""
+    """MuJoCo threads stepping the batched envs (0: one per CPU core)."""
     eval_freq: int = 50_000
     """Evaluate on the fixed evaluation set every this many total steps (0: never)."""
     eval_steps: int = 500
@@ -134,18 +135,21 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def make_vec_env(env_kwargs: dict, n_envs: int, seed: int, kind: str = "subproc",
+def make_vec_env(env_config: dict, n_envs: int, seed: int, kind: str = "batched",
                  n_workers: int = 0):
-    import os
-
+    """The training envs. batched: one `mujoco.batch.Batch` of n_envs arms in this process
+    (vecenv.LeadVecEnv; n_workers = MuJoCo threads, 0 = all cores); subproc: SB3's
+    SubprocVecEnv, a process per env (the reference configuration); dummy: a loop of single
+    envs in this process."""
     import gymnasium as gym
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
-    if kind == "batched":
-        from vecenv import BatchedSubprocVecEnv
+    from env import EnvConfig
 
-        workers = min(n_envs, n_workers or os.cpu_count() or 1)
-        vec = BatchedSubprocVecEnv(env_kwargs, n_envs, workers)
+    if kind == "batched":
+        from vecenv import LeadVecEnv
+
+        vec = LeadVecEnv(EnvConfig.from_dict(env_config), n_envs, nthread=n_workers)
         vec.seed(seed)
         return VecMonitor(vec)
 
@@ -157,35 +161,33 @@ def make_vec_env(env_kwargs: dict, n_envs: int, seed: int, kind: str = "subproc"
 
             if kind == "subproc":  # Ctrl-C is the main process's to handle (it saves the model)
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-            e = gym.make("PandaLead-v0", **env_kwargs)
-            e.reset(seed=seed + rank)
+            e = gym.make("PandaLead-v0", max_episode_steps=-1, **env_config)
+            # Each env its own stream, spawned from the training seed (as LeadVecEnv does).
+            e.reset(seed=int(np.random.SeedSequence(seed).spawn(n_envs)[rank].generate_state(1)[0]))
             return e
 
         return thunk
 
     fns = [make(i) for i in range(n_envs)]
     vec = SubprocVecEnv(fns, start_method="forkserver") if kind == "subproc" else DummyVecEnv(fns)
-    vec.seed(seed)
     return VecMonitor(vec)
 
 
 def evaluate(act_fn, env_kwargs: dict, steps: int, episodes=EVAL_SET) -> dict:
-    """Deterministic episodes on (seed, shape) pairs -> tracking metrics in cm and reward."""
-    import env as env_mod
-    from rollout import record
+    """Deterministic episodes on (seed, shape) pairs, played as one batch -> tracking metrics
+    in cm and reward."""
+    from env import EnvConfig
+    from rollout import record_many
 
-    kwargs = {**env_kwargs, "episode_steps": steps}
-    e = env_mod.PandaLeadEnv(**kwargs)
+    config = EnvConfig.from_dict(env_kwargs).replace(episode_steps=steps)
+    seeds, shapes = zip(*episodes, strict=True)
     per_shape: dict[str, list] = {}
     returns = []
-    for seed, shape in episodes:
-        r = record(e, act_fn, seed, shape)
+    for r in record_many(config, act_fn, seeds, shapes):
         err = r.error
         returns.append(r.meta["return"])
         # Grouped by the shape actually played (a None in `episodes` means drawn from the seed).
         per_shape.setdefault(r.meta["shape"], []).append((100 * err.mean(), 100 * (err < 0.05).mean()))
-    e.close()
     out = {"mean_error_cm": float(np.mean([m for v in per_shape.values() for m, _ in v])),
            "in_band_pct": float(np.mean([b for v in per_shape.values() for _, b in v])),
            "mean_return": float(np.mean(returns))}
@@ -333,9 +335,8 @@ def train(args: Args, on_eval=None) -> Path:
             config["timesteps"] = int(args.timesteps)
     else:
         config = resolve_config(args)
-        probe = env_mod.PandaLeadEnv(**config["env"])  # validates the kwargs before any work
-        config["env_resolved"] = probe.config
-        probe.close()
+        # Validates the settings before any work; the sidecar stores every field.
+        config["env_resolved"] = env_mod.EnvConfig.from_dict(config["env"]).to_dict()
         stem = args.name or args.preset or "lead"
         run_dir = args.runs_dir / f"{stem}__{args.seed}__{int(time.time())}"
         run_dir.mkdir(parents=True, exist_ok=False)

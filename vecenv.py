@@ -1,120 +1,84 @@
-"""A SubprocVecEnv whose workers each own a batch of envs and answer with stacked arrays.
+"""Stable-Baselines3's view of the batched env: an SB3 `VecEnv` over one `env.LeadTask`.
 
-SB3's SubprocVecEnv gives every env its own process: one pipe round trip (~95 us) per env per
-step, more than the env's own physics. Here ``n_envs`` envs are split over ``n_workers``
-processes; each worker steps its envs in a loop and sends back one array per quantity, so a
-vectorised step costs one round trip per *worker*. Infos are trimmed to what SB3 reads
-(``terminal_observation``, ``TimeLimit.truncated`` and any failure), because pickling the
-full per-step info dicts costs more than the step. It is a drop-in VecEnv for train.py.
+N arms step in one `mujoco.batch.Batch` in this process (MuJoCo's threads, no pipes, no
+worker processes). SB3 wants its own conventions, which differ from Gymnasium's vector API:
+an episode that ends is reset within the same step, its last observation goes into
+``info["terminal_observation"]``, and ``info["TimeLimit.truncated"]`` marks a timeout so
+that PPO bootstraps from it instead of treating it as a failure.
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
+from gymnasium import spaces
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-# The worker lives in its own module: unpickling it in a new process must not import
-# stable-baselines3 (and with it torch, ~400 MB per process).
-from vecenv_worker import worker
+from env import EnvConfig, LeadTask
 
 
-class BatchedSubprocVecEnv(VecEnv):
-    """``n_envs`` PandaLeadEnv instances in ``n_workers`` processes (envs split evenly)."""
+class LeadVecEnv(VecEnv):
+    """``n_envs`` PandaLead-v0 episodes for SB3. ``seed(s)`` gives env i the stream
+    ``SeedSequence(s).spawn(n_envs)[i]``: its own trajectories, disjoint from every other
+    env's and from every other training seed's (see seeds.py)."""
 
-    def __init__(self, env_kwargs: dict, n_envs: int, n_workers: int,
-                 start_method: str = "forkserver"):
-        if not 1 <= n_workers <= n_envs:
-            raise ValueError(f"need 1 <= n_workers <= n_envs, got {n_workers} and {n_envs}")
-        import env as env_mod
+    def __init__(self, config: EnvConfig, n_envs: int, nthread: int = 0):
+        self.task = LeadTask(config, n_envs, nthread=nthread)
+        obs_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
+        super().__init__(n_envs, obs_space, spaces.Box(-1.0, 1.0, (3,), np.float32))
+        self._actions = np.zeros((n_envs, 3), dtype=np.float32)
+        self._stream_seed: int | None = None
 
-        probe = env_mod.PandaLeadEnv(**env_kwargs)
-        obs_space, act_space = probe.observation_space, probe.action_space
-        probe.close()
-        ctx = mp.get_context(start_method)
-        sizes = [n_envs // n_workers + (w < n_envs % n_workers) for w in range(n_workers)]
-        self._slices = np.split(np.arange(n_envs), np.cumsum(sizes)[:-1])
-        self.remotes, self.processes = [], []
-        for size in sizes:
-            remote, work = ctx.Pipe()
-            p = ctx.Process(target=worker, args=(work, remote, env_kwargs, size), daemon=True)
-            p.start()
-            work.close()
-            self.remotes.append(remote)
-            self.processes.append(p)
-        self.waiting = self.closed = False
-        super().__init__(n_envs, obs_space, act_space)
+    def seed(self, seed: int | None = None) -> Sequence[None]:
+        self._stream_seed = seed
+        return [None] * self.num_envs
+
+    def reset(self) -> np.ndarray:
+        if self._stream_seed is not None:
+            streams = np.random.SeedSequence(self._stream_seed).spawn(self.num_envs)
+            self.task.rngs = [np.random.default_rng(s) for s in streams]
+            self._stream_seed = None  # a later reset() continues the streams
+        return self.task.reset()
 
     def step_async(self, actions: np.ndarray) -> None:
-        for remote, idx in zip(self.remotes, self._slices, strict=True):
-            remote.send(("step", actions[idx]))
-        self.waiting = True
+        self._actions = actions
 
     def step_wait(self):
-        results = [remote.recv() for remote in self.remotes]
-        self.waiting = False
-        obs = np.concatenate([r[0] for r in results])
-        rew = np.concatenate([r[1] for r in results])
-        done = np.concatenate([r[2] for r in results])
-        infos = [info for r in results for info in r[3]]
-        return obs, rew, done, infos
-
-    def reset(self):
-        for remote, idx in zip(self.remotes, self._slices, strict=True):
-            remote.send(("reset", ([self._seeds[i] for i in idx],
-                                   [self._options[i] for i in idx])))
-        obs = np.concatenate([remote.recv() for remote in self.remotes])
-        self._reset_seeds()
-        self._reset_options()
-        return obs
+        obs, reward, terminated, truncated, info = self.task.step(self._actions)
+        done = terminated | truncated
+        dist, collided = info["distance"], info["self_collision"]
+        infos: list[dict[str, Any]] = [{"distance": float(dist[i]), "self_collision": bool(collided[i])}
+                                       for i in range(self.num_envs)]
+        ended = np.flatnonzero(done)
+        if len(ended):
+            for i in ended:
+                infos[i]["terminal_observation"] = obs[i].copy()
+                infos[i]["TimeLimit.truncated"] = bool(truncated[i])
+                if info["unstable"][i]:
+                    infos[i]["failure"] = "unstable"
+            obs[ended] = self.task.reset(ended)[ended]  # the others keep their (noisy) obs
+        return obs, reward.astype(np.float32), done, infos
 
     def close(self) -> None:
-        if self.closed:
-            return
-        if self.waiting:
-            for remote in self.remotes:
-                remote.recv()
-        for remote in self.remotes:
-            remote.send(("close", None))
-        for p in self.processes:
-            p.join()
-        for remote in self.remotes:
-            remote.close()
-        self.closed = True
+        pass
 
-    def _route(self, indices: VecEnvIndices):
-        """Per worker: (remote, local indices, global indices) for the requested envs."""
-        wanted = set(self._get_indices(indices))
-        for remote, idx in zip(self.remotes, self._slices, strict=True):
-            local = [j for j, g in enumerate(idx) if g in wanted]
-            if local:
-                yield remote, local
+    # SB3's VecEnv interface for attribute access; the batch has no per-env objects.
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        value = getattr(self.task.config, attr_name)
+        return [value] * len(self._indices(indices))
 
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        out = []
-        for remote, local in self._route(indices):
-            remote.send(("get_attr", (local, attr_name)))
-            out.extend(remote.recv())
-        return out
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise AttributeError("the batched env's settings are fixed at construction (EnvConfig)")
 
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        for remote, local in self._route(indices):
-            remote.send(("set_attr", (local, attr_name, value)))
-            remote.recv()
+    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
+        raise AttributeError(f"the batched env has no per-env method {method_name!r}")
 
-    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None,
-                   **method_kwargs) -> list[Any]:
-        out = []
-        for remote, local in self._route(indices):
-            remote.send(("env_method", (local, method_name, method_args, method_kwargs)))
-            out.extend(remote.recv())
-        return out
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False] * len(self._indices(indices))
 
-    def env_is_wrapped(self, wrapper_class, indices: VecEnvIndices = None) -> list[bool]:
-        return [False] * len(self._get_indices(indices))  # the workers hold bare envs
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        raise NotImplementedError("render in the main process (eval.py --video), not in workers")
+    def _indices(self, indices) -> list[int]:
+        if indices is None:
+            return list(range(self.num_envs))
+        return [indices] if isinstance(indices, int) else list(indices)
