@@ -41,8 +41,43 @@ def make_analytic(tau: float = DEFAULT_TAU):
 
 
 def make_policy(model, deterministic: bool = True):
+    """A PPO model as a controller. Deterministic actions are the Gaussian policy's mean,
+    computed in float64 numpy one row at a time (a stack of (1, d) @ (d, k) products), so an
+    arm's action does not depend on how many arms are evaluated together; torch's batched
+    matmul rounds differently for different batch sizes, which would make a 1,000-seed batch
+    differ from one-at-a-time runs in the last bits. Stochastic actions go through SB3."""
+    if not deterministic:
+        return lambda obs, task: model.predict(obs, deterministic=False)[0]
+    layers = _numpy_actor(model)
+
     def act(obs, task) -> np.ndarray:
-        action, _ = model.predict(obs, deterministic=deterministic)
-        return action
+        h = np.asarray(obs, dtype=np.float64)[:, None, :]
+        for weight_t, bias, fn in layers:
+            h = h @ weight_t + bias
+            if fn is not None:
+                h = fn(h)
+        return np.clip(h[:, 0, :], -1.0, 1.0).astype(np.float32)
 
     return act
+
+
+def _numpy_actor(model):
+    """(weight^T, bias, activation) per layer of an SB3 MlpPolicy's actor, in float64."""
+    import torch
+
+    policy = model.policy
+    activations = {torch.nn.Tanh: np.tanh, torch.nn.ReLU: lambda x: np.maximum(x, 0.0)}
+    fn = activations.get(policy.activation_fn)
+    if fn is None or getattr(policy, "squash_output", False):
+        raise ValueError(f"no numpy actor for {policy.activation_fn} / squashed outputs")
+    layers = []
+    for module in [*policy.mlp_extractor.policy_net, policy.action_net]:
+        if isinstance(module, torch.nn.Linear):
+            w = module.weight.detach().cpu().double().numpy()
+            b = module.bias.detach().cpu().double().numpy()
+            layers.append([w.T.copy(), b, None])
+        elif type(module) in activations:
+            layers[-1][2] = fn
+        else:
+            raise ValueError(f"no numpy actor for layer {module}")
+    return [tuple(layer) for layer in layers]

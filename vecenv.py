@@ -26,6 +26,7 @@ class LeadVecEnv(VecEnv):
 
     def __init__(self, config: EnvConfig, n_envs: int, nthread: int = 0):
         self.task = LeadTask(config, n_envs, nthread=nthread)
+        self.render_mode = None  # SB3 asks; a batch renders nothing
         obs_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
         super().__init__(n_envs, obs_space, spaces.Box(-1.0, 1.0, (3,), np.float32))
         self._actions = np.zeros((n_envs, 3), dtype=np.float32)

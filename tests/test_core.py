@@ -4,7 +4,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from core import HOME_QPOS, N_JOINTS, ArmCore, reachable
+from core import N_JOINTS, ArmBatch, home_qpos, load_model, reachable
+
+HOME_QPOS = home_qpos()
 
 
 class StaticTarget:
@@ -24,7 +26,7 @@ class StaticTarget:
 
 @pytest.fixture(scope="module")
 def core():
-    return ArmCore()
+    return ArmBatch(1, nthread=1)
 
 
 def tip_at(core, q):
@@ -56,33 +58,33 @@ def test_ik_converges_to_reachable_static_targets(core):
     for _ in range(30):
         # Targets the arm can reach: the tip of a random posture around the home pose.
         target = tip_at(core, HOME_QPOS + rng.uniform(-0.7, 0.7, N_JOINTS))
-        q = core.ik(target, q0=HOME_QPOS, iters=200)
+        q = core.ik(target[None], q0=HOME_QPOS, iters=200)[0]
         assert np.linalg.norm(tip_at(core, q) - target) < 1e-3
         lo, hi = core.model.jnt_range[:N_JOINTS].T
         assert np.all(q >= lo) and np.all(q <= hi)
 
 
 def test_ik_respects_joint_limits_for_unreachable_target(core):
-    q = core.ik(np.array([3.0, 0.0, 0.5]), q0=HOME_QPOS, iters=100)
+    q = core.ik(np.array([[3.0, 0.0, 0.5]]), q0=HOME_QPOS, iters=100)[0]
     lo, hi = core.model.jnt_range[:N_JOINTS].T
     assert np.all(q >= lo) and np.all(q <= hi) and np.isfinite(q).all()
 
 
 def test_closed_loop_reaches_static_target(core):
     target = tip_at(core, HOME_QPOS + np.array([0.3, 0.2, -0.2, 0.3, 0.1, -0.2, 0.0]))
-    core.reset(StaticTarget(target), 300)
+    core.reset(trajs=[StaticTarget(target)], n_steps=300)
     for _ in range(300):
         core.step()
-    assert np.linalg.norm(core.tip_pos - target) < 1e-3
+    assert np.linalg.norm(core.tip_pos[0] - target) < 1e-3
 
 
 def test_pd_holds_home_pose_under_gravity(core):
-    core.reset(StaticTarget(tip_at(core, HOME_QPOS)), 200)
-    start_tip = core.tip_pos.copy()
+    core.reset(trajs=[StaticTarget(tip_at(core, HOME_QPOS))], n_steps=200)
+    start_tip = core.tip_pos[0].copy()
     for _ in range(200):  # 2 s
         core.step()
     assert np.abs(core.qpos - HOME_QPOS).max() < 1e-3
-    assert np.linalg.norm(core.tip_pos - start_tip) < 1e-3
+    assert np.linalg.norm(core.tip_pos[0] - start_tip) < 1e-3
     assert np.abs(core.qvel).max() < 1e-3
 
 
@@ -109,9 +111,9 @@ def test_self_collision_detected_on_folded_pose_and_not_at_home(core):
 
 def test_self_collision_flag_during_a_step(core):
     folded = np.array([0.0, 0.0, 0.0, -0.1, 0.0, 0.0, 0.0])
-    core.reset(StaticTarget(tip_at(core, folded)), 5, qpos=folded)
+    core.reset(trajs=[StaticTarget(tip_at(core, folded))], n_steps=5, qpos=folded)
     core.step()
-    assert core.self_collision and core.collision_depth > 0
+    assert core.self_collision[0] and core.collision_depth[0] > 0
 
 
 def test_reachability():
@@ -121,3 +123,44 @@ def test_reachability():
     assert not reachable(np.array([0.0, 0.0, 0.1]))  # inside the base column
     pts = np.array([[0.5, 0.0, 0.4], [1.5, 0.0, 0.4]])
     assert reachable(pts).tolist() == [True, False]
+
+
+def test_contact_flags_match_a_scan_of_every_substeps_contacts():
+    """The contact sensors recorded after each substep say what a loop of mj_step with a scan
+    of d.contact after every substep says (self-collision, its depth, floor contact)."""
+    m = load_model()
+    rng = np.random.default_rng(5)
+    n = 24
+    arms = ArmBatch(n, nthread=1)
+    starts = HOME_QPOS + rng.uniform(-1.5, 1.5, (n, N_JOINTS))
+    starts = np.clip(starts, m.jnt_range[:N_JOINTS, 0], m.jnt_range[:N_JOINTS, 1])
+    targets = [StaticTarget(rng.uniform([-0.3, -0.6, -0.1], [0.9, 0.6, 0.9])) for _ in range(n)]
+    arms.reset(trajs=targets, n_steps=40, qpos=starts)
+    datas = [arms.get_data(i) for i in range(n)]
+    seen_self = seen_floor = 0
+    for _ in range(40):
+        goals = arms.ik(arms.target()[0])
+        arms.step()
+        for i, d in enumerate(datas):
+            d.ctrl[:N_JOINTS] = goals[i]
+            hit, depth, floor = False, 0.0, False
+            for _ in range(arms.substeps):
+                mujoco.mj_step(m, d)
+                for c in d.contact[: d.ncon]:
+                    b1, b2 = m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]
+                    if b1 and b2:
+                        hit, depth = True, max(depth, -c.dist)
+                    else:
+                        floor = True
+            np.testing.assert_array_equal(d.qpos[:N_JOINTS], arms.qpos[i])
+            assert arms.self_collision[i] == hit and arms.floor_contact[i] == floor
+            assert arms.collision_depth[i] == depth
+            seen_self += hit
+            seen_floor += floor
+    assert seen_self > 0 and seen_floor > 0, "the test never exercised a contact"
+
+
+def test_home_pose_and_rates_come_from_the_mjcf():
+    m = load_model()
+    np.testing.assert_array_equal(HOME_QPOS, m.key("home").qpos[:N_JOINTS])
+    assert ArmBatch(1, nthread=1).dt == pytest.approx(m.opt.timestep * 5) == pytest.approx(0.01)

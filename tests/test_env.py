@@ -8,7 +8,8 @@ import pytest
 
 import env as env_mod
 import trajectory
-from core import ArmCore
+from core import ArmBatch
+from errors import UserError
 from rollout import record
 
 
@@ -31,12 +32,13 @@ def test_zero_action_reproduces_the_classical_core_exactly():
     seed, steps = 11, 150
     e = env_mod.PandaLeadEnv(episode_steps=steps)
     e.reset(seed=0, options={"traj_seed": seed})
-    core = ArmCore()
-    core.reset(trajectory.sample(seed), steps)
+    core = ArmBatch(1, nthread=1)
+    core.reset(trajs=[trajectory.sample(seed)], n_steps=steps)
     for _ in range(steps):
         e.step(np.zeros(3, dtype=np.float32))
         core.step()  # no lead at all
-        assert np.array_equal(e.core.data.qpos, core.data.qpos)
+        assert np.array_equal(e.core.qpos, core.qpos)
+        assert np.array_equal(e.core.qvel, core.qvel)
         assert np.array_equal(e.core.tip_pos, core.tip_pos)
 
 
@@ -71,10 +73,10 @@ def test_observation_layout_follows_the_feature_order():
     assert [f for f, _, _ in e._layout] == ["ee_pos", "target_acc", "prev_action"]
     obs, _ = e.reset(seed=0, options={"traj_seed": 2})
     assert obs.shape == (9,) and obs.dtype == np.float32
-    np.testing.assert_allclose(obs[0:3], e.core.tip_pos, atol=1e-6)
+    np.testing.assert_allclose(obs[0:3], e.core.tip_pos[0], atol=1e-6)
     obs, *_ = e.step(np.array([0.5, -0.5, 1.0], dtype=np.float32))
     np.testing.assert_allclose(obs[6:9], [0.5, -0.5, 1.0])
-    _, _, acc = e.core.target()
+    acc = e.core.target()[2][0]
     np.testing.assert_allclose(obs[3:6], acc / env_mod.OBS_SCALE["target_acc"], rtol=1e-6)
 
 
@@ -86,10 +88,16 @@ def test_lead_is_scaled_and_clipped():
 
 
 def test_bad_inputs_raise_clear_errors():
-    with pytest.raises(ValueError, match="did you mean 'target_acc'"):
+    with pytest.raises(UserError, match="did you mean 'target_acc'"):
         env_mod.PandaLeadEnv(obs_features=("target_ac",))
-    with pytest.raises(ValueError, match="did you mean 'circle'"):
+    with pytest.raises(UserError, match="did you mean 'circle'"):
         env_mod.PandaLeadEnv(shapes=("circel",))
+    with pytest.raises(UserError, match="did you mean 'max_lead'"):
+        env_mod.PandaLeadEnv(max_leed=0.1)
+    for bad in (dict(ik_iters=0), dict(tracking_scale=0.0), dict(max_lead=float("nan")),
+                dict(obs_noise={"ee_pos": float("nan")}), dict(episode_steps=1.5)):
+        with pytest.raises(UserError):
+            env_mod.PandaLeadEnv(**bad)
     e = env_mod.PandaLeadEnv()
     e.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
@@ -133,7 +141,7 @@ def test_terminates_on_self_collision_only_when_asked():
         # Drive the IK target into the arm's own body: tip at the shoulder.
         hit = None
         for _ in range(200):
-            lead = (np.array([0.0, 0.0, 0.35]) - e.core.target()[0]) / e.max_lead
+            lead = (np.array([0.0, 0.0, 0.35]) - e.core.target()[0][0]) / e.max_lead
             _, r, term, trunc, info = e.step(np.clip(lead, -1, 1).astype(np.float32))
             if info["self_collision"] or term or trunc:
                 hit = (term, info)
@@ -151,7 +159,7 @@ def test_terminates_on_self_collision_only_when_asked():
 
 def test_record_writes_one_row_per_step():
     e = env_mod.PandaLeadEnv(episode_steps=50)
-    r = record(e, lambda obs, env: np.zeros(3, np.float32), traj_seed=8)
+    r = record(e, lambda obs, task: np.zeros((len(obs), 3), np.float32), traj_seed=8)
     assert len(r.t) == 50 and r.ee_pos.shape == (50, 3) and r.qpos.shape == (50, 7)
     np.testing.assert_allclose(r.t, np.arange(1, 51) * 0.01)
     assert r.meta["seed"] == 8 and r.meta["shape"] in trajectory.SHAPES
@@ -166,3 +174,32 @@ def test_evaluate_groups_drawn_shapes_by_the_shape_played():
     res = evaluate(classical, {}, 20, episodes=[(0, None), (1, None), (2, "fly")])
     played = {trajectory.sample(0).shape, trajectory.sample(1).shape, "fly"}
     assert {k.split("/")[0] for k in res if "/" in k} == played
+
+
+def test_arguments_table_in_the_docstring_is_the_config():
+    import dataclasses
+
+    doc = env_mod.PandaLeadEnv.__doc__
+    defaults = env_mod.EnvConfig()
+    for f in dataclasses.fields(env_mod.EnvConfig):
+        row = next(line for line in doc.splitlines() if line.strip().startswith(f"| {f.name} |"))
+        assert repr(getattr(defaults, f.name)) in row
+        assert env_mod.config_docs()[f.name], f"{f.name} has no one-line docstring"
+
+
+def test_config_round_trips_through_its_dict():
+    c = env_mod.EnvConfig(obs_features=("target_vel", "ee_pos"), shapes=("fly",),
+                          obs_noise={"ee_pos": 0.01}, max_lead=0.1)
+    assert c.obs_features == ("ee_pos", "target_vel")  # canonical order
+    assert env_mod.EnvConfig.from_dict(c.to_dict()) == c
+    assert env_mod.PandaLeadEnv(c).cfg == c == env_mod.PandaLeadEnv(**c.to_dict()).cfg
+
+
+def test_registered_time_limit_and_vector_entry_point():
+    spec = gym.spec("PandaLead-v0")
+    assert spec.max_episode_steps == env_mod.EnvConfig().episode_steps
+    v = gym.make_vec("PandaLead-v0", num_envs=3)
+    assert isinstance(v.unwrapped, env_mod.PandaLeadVecEnv) and v.num_envs == 3
+    obs, info = v.reset(seed=0)
+    assert obs.shape == (3, 15) and obs.dtype == np.float32 and len(set(info["traj_seed"])) == 3
+    v.close()
