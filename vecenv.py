@@ -26,7 +26,6 @@ class LeadVecEnv(VecEnv):
 
     def __init__(self, config: EnvConfig, n_envs: int, nthread: int = 0):
         self.task = LeadTask(config, n_envs, nthread=nthread)
-        self.render_mode = None  # SB3 asks; a batch renders nothing
         obs_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
         super().__init__(n_envs, obs_space, spaces.Box(-1.0, 1.0, (3,), np.float32))
         self._actions = np.zeros((n_envs, 3), dtype=np.float32)
@@ -67,7 +66,8 @@ class LeadVecEnv(VecEnv):
 
     # SB3's VecEnv interface for attribute access; the batch has no per-env objects.
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        value = getattr(self.task.config, attr_name)
+        # render_mode: SB3 asks at construction; a batch renders nothing (eval.py renders).
+        value = None if attr_name == "render_mode" else getattr(self.task.config, attr_name)
         return [value] * len(self._indices(indices))
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
