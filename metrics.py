@@ -68,6 +68,11 @@ COLOURS = {"Classical": "tab:blue", "Analytic": "tab:orange", "RL+Lead": "tab:gr
 # Display names for the usual prefixes (--headline without --labels).
 DEFAULT_LABELS = {"ikpd": "Classical", "analytic": "Analytic", "eval": "RL+Lead"}
 SHAPES = ("circle", "fig8", "fly")
+# Headline bins hold at least this many rollouts (fewer bins in a small panel): a CI from
+# fewer values means little.
+MIN_PER_BIN = 5
+# Below this many pairs a percentile-bootstrap CI is too narrow to back a claim.
+MIN_PAIRS_FOR_CLAIM = 10
 
 
 # ---- per-rollout metrics --------------------------------------------------------------------
@@ -238,14 +243,16 @@ def summarize(
 
 
 def claim(row: Row, label_b: str = "B") -> str:
-    """One line: the mean and median differences, each 'shown' or 'not shown', and the share
-    of seeds improved."""
+    """One line: the mean and median differences, each 'shown' (95% CI excludes 0 and at least
+    MIN_PAIRS_FOR_CLAIM pairs) or 'not shown', and the share of seeds improved."""
     fmt = BY_KEY[row.key].fmt
 
     def part(name: str, value: float, ci: tuple[float, float]) -> str:
         if not np.isfinite(value):
             return f"{name} diff n/a"
         verdict = "shown" if shown(ci) else "not shown"
+        if row.n_pairs < MIN_PAIRS_FOR_CLAIM:
+            verdict = f"not shown (only {row.n_pairs} pairs, fewer than {MIN_PAIRS_FOR_CLAIM})"
         return f"{name} diff {_num(value, fmt, True)} {_ci(ci, fmt)} {verdict}"
 
     share = (f"{label_b} better on {row.improved}/{row.n_pairs} seeds "
@@ -627,7 +634,8 @@ def binned_errors(speeds: np.ndarray, errors: np.ndarray, edges: np.ndarray, n_b
 def headline_data(sets: dict[str, dict[int, Rollout]], seeds: list[int], n_bins: int = 5,
                   n_boot: int = 10000, ci_seed: int = 0) -> dict[str, dict[str, list[dict]]]:
     """panel ('all', then each shape) -> set label -> binned_errors over that panel's seeds.
-    The bins are shared by every set within a panel (the same seeds give the same targets)."""
+    The bins are shared by every set within a panel (the same seeds give the same targets);
+    a panel gets at most n_bins bins and at least MIN_PER_BIN rollouts per bin."""
     first = next(iter(sets.values()))
     shapes = {s: first[s].shape for s in seeds}
     panels = ["all"] + [sh for sh in SHAPES if sh in shapes.values()] + sorted(
@@ -636,7 +644,7 @@ def headline_data(sets: dict[str, dict[int, Rollout]], seeds: list[int], n_bins:
     for panel in panels:
         ps = [s for s in seeds if panel == "all" or shapes[s] == panel]
         speeds = np.array([peak_speed(first[s]) for s in ps])
-        edges = speed_bin_edges(speeds, n_bins)
+        edges = speed_bin_edges(speeds, max(1, min(n_bins, len(ps) // MIN_PER_BIN)))
         out[panel] = {
             label: binned_errors(speeds, np.array([100 * _mean(rs[s].error) for s in ps]),
                                  edges, n_boot, ci_seed)
@@ -652,7 +660,9 @@ def plot_headline(data: dict[str, dict[str, list[dict]]], seeds: list[int], path
     labels = list(next(iter(data.values())))
     colours = colours_for(labels)
     fig, axes = plt.subplots(2, len(panels), figsize=(4.2 * len(panels), 7.5), sharey="row",
-                             constrained_layout=True, squeeze=False)
+                             sharex=True, constrained_layout=True, squeeze=False)
+    xs = [b["x"] for p in panels for lab in labels for b in data[p][lab]]
+    span = max(xs) - min(xs) or 1.0
     for j, panel in enumerate(panels):
         n = sum(b["n"] for b in data[panel][labels[0]])
         for i, stat in enumerate(("mean", "median")):
@@ -663,17 +673,21 @@ def plot_headline(data: dict[str, dict[str, list[dict]]], seeds: list[int], path
                 y = np.array([b[stat] for b in bins])
                 lo, hi = (np.array([b[f"{stat}_ci"][q] for b in bins]) for q in (0, 1))
                 # A small sideways nudge per set keeps overlapping error bars apart.
-                dx = (k - (len(labels) - 1) / 2) * 0.006 * (np.ptp(x) if len(x) > 1 else 1)
+                dx = (k - (len(labels) - 1) / 2) * 0.008 * span
                 ax.errorbar(x + dx, y, yerr=[np.nan_to_num(y - lo), np.nan_to_num(hi - y)],
                             color=colours[label], marker="o", capsize=3, label=label)
-            ax.set_ylim(bottom=0)
             ax.grid(alpha=0.3)
             if i == 0:
                 ax.set_title(f"{panel} (n={n} per set)")
             if i == 1:
+                ax.tick_params(labelbottom=True)
                 ax.set_xlabel("target peak speed (m/s), bin median")
             if j == 0:
                 ax.set_ylabel(f"{stat} of per-rollout mean error (cm)")
+    for i, stat in enumerate(("mean", "median")):  # shared y per row, from 0 to the top CI
+        vals = [v for p in panels for lab in labels for b in data[p][lab]
+                for v in (b[stat], b[f"{stat}_ci"][1]) if np.isfinite(v)]
+        axes[i, 0].set_ylim(0, 1.08 * max(vals))
     axes[0, 0].legend(fontsize="small")
     fig.suptitle(f"tracking error against target peak speed, 95% bootstrap CIs; "
                  f"{seed_set_title(seeds, 'per set')}")
