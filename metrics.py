@@ -6,10 +6,11 @@
 Every metric is computed per rollout; the two sets are paired by seed. The table reports, per
 set, mean ± std and median; and for the paired differences B - A the mean and the median, each
 with a 95% percentile-bootstrap CI, the share of seeds where B is better, and a Wilcoxon
-signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0. Seeds with
-non-finite values or a failed episode in either set are left out of both sets (one warning
-line names them). --headline draws mean and median error against the target's peak speed for
-2 or more sets. Every definition, exactly as computed: docs/metrics.md.
+signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0 (and at least 10
+pairs back it). Seeds with non-finite values or a failed episode in either set are left out of
+both sets (one warning line names them). The headline figure (--headline, two or more sets)
+draws mean and median error against the target's peak speed. Every definition, exactly as
+computed: docs/metrics.md.
 """
 
 from __future__ import annotations
@@ -756,8 +757,10 @@ def _print_tables(console: Console, tables: list[Table], markdown: bool) -> None
                       markup=False, highlight=False)
         table.title = table.caption = None
         table.box = box.MARKDOWN
-        with console.capture() as captured:
-            console.print(table)
+        # Wide enough that no cell wraps: a wrapped cell would split a markdown row in two.
+        wide = Console(width=100_000)
+        with wide.capture() as captured:
+            wide.print(table)
         # rich pads the markdown box with blank rows of spaces: keep only the table lines
         print("\n".join(ln.rstrip() for ln in captured.get().splitlines() if ln.strip()))
 
@@ -838,7 +841,7 @@ def main(args: Args) -> int:
     check_options(args.settle_time, args.band_cm, args.tight_band_cm, args.bootstrap,
                   args.ci_seed)
     # Off a terminal rich would wrap at 80 columns and break the table apart.
-    console = Console(width=None if sys.stdout.isatty() else 200)
+    console = Console(width=None if sys.stdout.isatty() else 240)
     if args.headline:
         run_headline(args, console)
     else:

@@ -197,7 +197,9 @@ def test_cli_markdown_tables_are_github_markdown(root):
         assert set(lines[i + 1]) <= set("|-: ")  # the markdown separator row
         assert lines[i + 2].startswith("| mean error (cm)")
         assert lines[i - 1].strip()  # a title line above each table
+        assert not lines[i - 1].startswith("|")  # a one-row header: no wrapped cells
     rows = [ln for ln in lines if ln.startswith("|")]
+    assert any(ln.startswith("| out-of-reach error (cm) (") for ln in rows)  # label not wrapped
     assert all(ln.endswith("|") and ln == ln.rstrip() for ln in rows)
     assert not any(ln.strip() == "" and ln != "" for ln in lines)  # no lines of bare spaces
 
