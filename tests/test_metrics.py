@@ -17,23 +17,26 @@ sys.path.insert(0, str(REPO))
 
 import metrics  # noqa: E402
 import rollout  # noqa: E402
+from errors import UserError  # noqa: E402
 from rollout import Rollout  # noqa: E402
 
 DT = 0.01
 
 
-def make_rollout(ee, target=None, seed=0, shape="circle", reachable=None, dt=DT, duration=None):
+def make_rollout(ee, target=None, seed=0, shape="circle", reachable=None, dt=DT, duration=None,
+                 controller="test", target_vel=None):
     """A Rollout with the given tip and target paths (T, 3); everything else zero/False."""
     ee = np.asarray(ee, dtype=float)
     T = len(ee)
     target = np.zeros((T, 3)) if target is None else np.asarray(target, dtype=float)
     zeros3, zeros7 = np.zeros((T, 3)), np.zeros((T, 7))
     return Rollout(
-        t=dt * np.arange(1, T + 1), ee_pos=ee, target_pos=target, target_vel=zeros3,
+        t=dt * np.arange(1, T + 1), ee_pos=ee, target_pos=target,
+        target_vel=zeros3 if target_vel is None else np.asarray(target_vel, dtype=float),
         target_acc=zeros3, lead=zeros3, qpos=zeros7, qvel=zeros7,
         self_collision=np.zeros(T, bool), collision_depth=np.zeros(T),
         reachable=np.ones(T, bool) if reachable is None else np.asarray(reachable, bool),
-        meta=dict(seed=seed, shape=shape, controller="test", model="none",
+        meta=dict(seed=seed, shape=shape, controller=controller, model="none",
                   duration=T * dt if duration is None else duration, dt=dt),
     )
 
@@ -140,9 +143,9 @@ def test_compare_reports_unpaired_seeds_and_known_deltas():
 
 def test_compare_rejects_mismatched_duration_and_shape():
     a = {0: offset_rollout(0.01, T=100)}
-    with pytest.raises(ValueError, match="duration"):
+    with pytest.raises(UserError, match="duration"):
         metrics.compare(a, {0: offset_rollout(0.01, T=50)})
-    with pytest.raises(ValueError, match="shape"):
+    with pytest.raises(UserError, match="shape"):
         metrics.compare(a, {0: offset_rollout(0.01, shape="fly")})
 
 
@@ -194,7 +197,9 @@ def test_cli_markdown_tables_are_github_markdown(root):
         assert set(lines[i + 1]) <= set("|-: ")  # the markdown separator row
         assert lines[i + 2].startswith("| mean error (cm)")
         assert lines[i - 1].strip()  # a title line above each table
+        assert not lines[i - 1].startswith("|")  # a one-row header: no wrapped cells
     rows = [ln for ln in lines if ln.startswith("|")]
+    assert any(ln.startswith("| out-of-reach error (cm) (") for ln in rows)  # label not wrapped
     assert all(ln.endswith("|") and ln == ln.rstrip() for ln in rows)
     assert not any(ln.strip() == "" and ln != "" for ln in lines)  # no lines of bare spaces
 
@@ -211,3 +216,299 @@ def test_cli_mismatched_duration_exits_2(root):
     assert p.returncode == 2
     assert "Traceback" not in p.stderr
     assert "base" in p.stderr and "short" in p.stderr and "duration" in p.stderr
+
+
+# ---- medians, share improved, the "shown" rule ----------------------------------------------
+
+
+def offsets_sets(offsets_a, offsets_b, T=100):
+    """Two sets of constant-offset rollouts, seed i with offsets_a[i] and offsets_b[i] (m)."""
+    a = {s: offset_rollout(o, T=T, seed=s) for s, o in enumerate(offsets_a)}
+    b = {s: offset_rollout(o, T=T, seed=s) for s, o in enumerate(offsets_b)}
+    return a, b
+
+
+def test_tight_band_counts_steps_below_2_cm():
+    err = np.r_[np.full(50, 0.01), np.full(50, 0.03)]  # 1 cm then 3 cm
+    ee = np.stack([err, np.zeros(100), np.zeros(100)], axis=1)
+    m = metrics.rollout_metrics(make_rollout(ee), band_cm=5.0, tight_band_cm=2.0)
+    assert m["in_band"] == pytest.approx(100.0)
+    assert m["in_band_tight"] == pytest.approx(50.0)
+
+
+def test_medians_and_share_improved_follow_each_metrics_direction():
+    # A: 6 cm everywhere; B: 4 cm on four seeds, 15 cm on one. Differences in cm: -2 x4, +9.
+    a, b = offsets_sets([0.06] * 5, [0.04] * 4 + [0.15])
+    cmp = metrics.compare(a, b, n_boot=500)
+    row = cmp.row("mean_err")
+    assert row.better == "lower"
+    assert row.median_a == pytest.approx(6.0) and row.median_b == pytest.approx(4.0)
+    assert row.delta == pytest.approx((4 * -2 + 9) / 5)  # the outlier pulls the mean up
+    assert row.median_delta == pytest.approx(-2.0)
+    assert row.improved == 4 and row.share_improved == pytest.approx(0.8)
+    # Time within 5 cm: higher is better. A is never within (6 cm); B is on the four 4 cm seeds.
+    band = cmp.row("in_band")
+    assert band.better == "higher"
+    assert band.improved == 4
+    assert band.median_delta == pytest.approx(100.0)
+    # A tie is not an improvement: no self-collision anywhere.
+    assert cmp.row("self_collision").improved == 0
+
+
+def test_shown_means_the_ci_excludes_zero():
+    assert metrics.shown((-2.0, -1.0)) and metrics.shown((0.5, 3.0))
+    assert not metrics.shown((-1.0, 1.0))
+    assert not metrics.shown((0.0, 1.0))  # touching zero does not exclude it
+    assert not metrics.shown((math.nan, math.nan))
+
+
+def test_median_ci_is_robust_where_the_mean_ci_is_not():
+    # 25 seeds 1 cm better, 5 seeds 10 cm worse: the mean (+0.83) is not distinguishable from
+    # 0 (sd 4.1, so a CI half-width near 1.5), but a resampled median is -1 unless half the
+    # draws are outliers, which has probability ~1e-4 per resample.
+    d = np.r_[np.full(25, -1.0), np.full(5, 10.0)]
+    assert metrics.median_ci(d, n_boot=2000) == (-1.0, -1.0)
+    lo, hi = metrics.paired_ci(d, n_boot=2000)
+    assert lo < 0 < hi
+
+    a, b = offsets_sets([0.05] * 30, [0.04] * 25 + [0.15] * 5)
+    line = metrics.claim(metrics.compare(a, b, n_boot=2000).row("mean_err"), "Beta")
+    assert "mean diff +0.83 [" in line and "] not shown;" in line
+    assert "median diff -1.00 [-1.00, -1.00] shown;" in line
+    assert "Beta better on 25/30 seeds (83%)" in line
+
+
+def test_no_claim_from_a_handful_of_pairs():
+    a, b = offsets_sets([0.03] * 4, [0.01] * 4)
+    row = metrics.compare(a, b, n_boot=300).row("mean_err")
+    assert metrics.shown(row.ci)  # the CI itself has zero width at -2 ...
+    assert "not shown (only 4 pairs" in metrics.claim(row)  # ... but 4 pairs back no claim
+
+
+# ---- silently wrong numbers: regressions ----------------------------------------------------
+
+
+def test_non_finite_seed_is_left_out_of_both_sets():
+    a, b = offsets_sets([0.03] * 5, [0.01] * 5)
+    b[2].ee_pos[10, 1] = np.nan
+    a[4].qvel[3, 0] = np.inf
+    cmp = metrics.compare(a, b, n_boot=300)
+    assert cmp.seeds == [0, 1, 3]
+    for row in cmp.rows:
+        if row.key != "out_reach_err":
+            assert row.n_a == row.n_b == row.n_pairs == 3, row.key
+    assert set(cmp.pairing.nonfinite) == {2, 4}
+    assert "ee_pos" in cmp.pairing.nonfinite[2][0] and "qvel" in cmp.pairing.nonfinite[4][0]
+    lines = cmp.pairing.warnings()
+    assert len(lines) == 1 and "both sets" in lines[0] and "2 (" in lines[0] and "4 (" in lines[0]
+
+
+def test_failed_and_short_episodes_are_left_out_of_both_sets():
+    a, b = offsets_sets([0.03] * 5, [0.01] * 5)
+    b[1].meta["failure"] = "unstable"
+    a[3] = offset_rollout(0.03, T=15, seed=3, duration=1.0)  # stopped after 15 of 100 steps
+    cmp = metrics.compare(a, b, n_boot=300)
+    assert cmp.seeds == [0, 2, 4]
+    assert set(cmp.pairing.failed) == {1, 3}
+    assert "unstable" in cmp.pairing.failed[1][0]
+    assert "15 of 100 steps" in cmp.pairing.failed[3][0]
+
+
+def test_a_set_holding_two_controllers_is_refused():
+    a = {s: offset_rollout(0.03, seed=s) for s in range(4)}
+    for s in range(3):
+        a[s].meta["controller"] = "classical"
+    a[3].meta["controller"] = "analytic"
+    b = {s: offset_rollout(0.01, seed=s) for s in range(4)}
+    with pytest.raises(UserError, match=r"mixes 2 controllers.*classical.*0-2.*analytic.*3"):
+        metrics.compare(a, b, n_boot=200)
+
+
+@pytest.mark.parametrize("kw", [dict(band_cm=math.nan), dict(band_cm=0.0), dict(band_cm=-5.0),
+                                dict(band_cm=math.inf), dict(tight_band_cm=math.nan),
+                                dict(settle_time=math.nan), dict(settle_time=-1.0)])
+def test_non_finite_or_non_positive_options_are_refused(kw):
+    a, b = offsets_sets([0.03] * 3, [0.01] * 3)
+    with pytest.raises(UserError, match="must be finite"):
+        metrics.compare(a, b, n_boot=200, **kw)
+
+
+# ---- figures --------------------------------------------------------------------------------
+
+
+def test_seed_set_titles_and_colours():
+    assert metrics._seed_list([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
+    assert metrics.seed_set_title(list(range(1000))) == "test seeds 0-999, n=1000 pairs"
+    c = metrics.colours_for(["RL+Lead", "Classical", "Mine", "Yours"])
+    assert c["Classical"] == metrics.colours_for(["Classical"])["Classical"]
+    assert len(set(c.values())) == 4  # every label its own colour
+
+
+def test_paired_difference_plot_is_a_distribution_at_n_1000():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rng = np.random.default_rng(0)
+    offsets = rng.uniform(0.0, 0.05, size=1000)
+    a, b = offsets_sets(0.05 + 0 * offsets, offsets, T=20)
+    cmp = metrics.compare(a, b, n_boot=100)
+    fig, ax = plt.subplots()
+    metrics.plot_paired_differences(ax, cmp, "C2")
+    assert len(ax.patches) <= 60  # histogram bins, not 1000 bars
+    assert any(list(ln.get_xdata()) == [0, 0] for ln in ax.get_lines())  # zero marked
+    legend = " ".join(t.get_text() for t in ax.get_legend().get_texts())
+    assert "median" in legend and "mean" in legend and "/1000 seeds" in legend
+    assert "n=1000 pairs" in ax.get_title()
+    plt.close(fig)
+
+
+def test_error_over_time_axis_is_not_set_by_the_start_up_transient():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def transient(seed, settled_m):
+        err = np.where(DT * np.arange(1, 101) < 0.2, 0.5, settled_m)  # 50 cm, then settled
+        return make_rollout(np.stack([err, 0 * err, 0 * err], axis=1), seed=seed)
+
+    sets = {"Classical": {s: transient(s, 0.03) for s in range(30)},
+            "Analytic": {s: transient(s, 0.02) for s in range(30)}}
+    fig, ax = plt.subplots()
+    metrics.plot_error_over_time(ax, sets, list(range(30)), metrics.colours_for(sets), 0.5,
+                                 (5.0, 2.0))
+    lo, hi = ax.get_ylim()
+    assert lo == 0 and 3.0 < hi < 10.0  # the 3 cm settled error is visible, 50 cm is clipped
+    assert "clipped" in ax.get_title() and "n=30" in ax.get_title()
+    assert any(list(ln.get_xdata()) == [0.5, 0.5] for ln in ax.get_lines())  # t = 0.5 s marked
+    plt.close(fig)
+
+
+# ---- headline: error against peak speed -----------------------------------------------------
+
+
+def speed_rollout(seed, speed, gain, shape):
+    """Target moving at a constant `speed` along x; the tip `gain * speed` metres behind."""
+    T = 100
+    vel = np.tile([speed, 0.0, 0.0], (T, 1))
+    target = np.cumsum(vel * DT, axis=0)
+    r = make_rollout(target - [gain * speed, 0, 0], target, seed=seed, shape=shape,
+                     target_vel=vel)
+    return r
+
+
+def headline_sets():
+    shapes = ("circle", "fig8", "fly")
+    return {label: {s: speed_rollout(s, 0.5 + 0.1 * s, gain, shapes[s % 3]) for s in range(15)}
+            for label, gain in (("Classical", 0.01), ("Analytic", 0.02), ("RL+Lead", 0.03))}
+
+
+def test_peak_speed_is_the_largest_target_speed():
+    r = make_rollout(np.zeros((3, 3)), target_vel=[[1, 0, 0], [3, 4, 0], [0, 2, 0]])
+    assert metrics.peak_speed(r) == pytest.approx(5.0)
+
+
+def test_headline_bins_error_by_peak_speed():
+    sets = headline_sets()
+    data = metrics.headline_data(sets, list(range(15)), n_bins=3, n_boot=500)
+    assert list(data) == ["all", "circle", "fig8", "fly"]
+    # all: speeds 0.5 .. 1.9 in three equal-count bins of five: seeds 0-4, 5-9, 10-14.
+    for label, gain in (("Classical", 0.01), ("Analytic", 0.02), ("RL+Lead", 0.03)):
+        bins = data["all"][label]
+        assert [b["n"] for b in bins] == [5, 5, 5]
+        assert [b["x"] for b in bins] == pytest.approx([0.7, 1.2, 1.7])
+        for b in bins:  # error (cm) = 100 * gain * speed; mean = median for evenly spaced speeds
+            assert b["mean"] == pytest.approx(100 * gain * b["x"])
+            assert b["median"] == pytest.approx(100 * gain * b["x"])
+            assert b["mean_ci"][0] <= b["mean"] <= b["mean_ci"][1]
+        # circle: seeds 0, 3, 6, 9, 12 -> one bin (five rollouts), median speed 1.1 m/s
+        (circle,) = data["circle"][label]
+        assert circle["n"] == 5 and circle["x"] == pytest.approx(1.1)
+        assert circle["mean"] == pytest.approx(100 * gain * 1.1)
+
+
+def test_cli_headline_three_sets(tmp_path):
+    for label, prefix in (("Classical", "ikpd"), ("Analytic", "analytic"), ("RL+Lead", "eval")):
+        for r in headline_sets()[label].values():
+            rollout.save(r, rollout.rollout_path(prefix, r.seed, tmp_path))
+    png = tmp_path / "head.png"
+    p = run_cli("--root", str(tmp_path), "--headline", "ikpd", "analytic", "eval",
+                "--plot", str(png))
+    assert p.returncode == 0, p.stderr
+    assert "n=15 seeds in every set (Classical, Analytic, RL+Lead)" in p.stdout
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    p = run_cli("--root", str(tmp_path), "--headline", "ikpd", "--plot", str(png))
+    assert p.returncode == 2 and "2 or more" in p.stderr
+    p = run_cli("--root", str(tmp_path), "--headline", "ikpd", "eval")
+    assert p.returncode == 2 and "--plot" in p.stderr
+
+
+# ---- CLI: errors and warnings ---------------------------------------------------------------
+
+
+def test_cli_help_has_a_description():
+    p = subprocess.run([sys.executable, "metrics.py", "--help"], cwd=REPO, capture_output=True,
+                       text=True, timeout=60, env={**os.environ, "COLUMNS": "120"})
+    assert p.returncode == 0
+    assert "Compare rollout sets" in p.stdout and "--headline" in p.stdout
+
+
+def test_cli_prints_claims_with_not_shown(tmp_path):
+    for s in range(30):
+        rollout.save(offset_rollout(0.05, seed=s), rollout.rollout_path("base", s, tmp_path))
+        rollout.save(offset_rollout(0.04 if s < 25 else 0.15, seed=s),
+                     rollout.rollout_path("new", s, tmp_path))
+    p = run_cli("--root", str(tmp_path), "--prefix-a", "base", "--prefix-b", "new")
+    assert p.returncode == 0, p.stderr
+    line = next(ln for ln in p.stdout.splitlines() if ln.strip().startswith("mean error (cm),"))
+    assert "not shown" in line.split(";")[0] and "median diff -1.00" in line
+
+
+@pytest.mark.parametrize("opt", [("--band-cm", "nan"), ("--band-cm", "-1"), ("--band-cm", "inf"),
+                                 ("--tight-band-cm", "0"), ("--settle-time", "nan")])
+def test_cli_bad_number_is_one_error_line(root, opt):
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned", *opt)
+    assert p.returncode == 2
+    assert p.stderr.strip().splitlines() == [p.stderr.strip()]  # one line
+    assert p.stderr.startswith(f"error: {opt[0]} must be finite")
+
+
+def test_cli_non_finite_and_failed_seeds_named_and_n_counts_pairs_used(root):
+    r = rollout.load(rollout.rollout_path("learned", 2, root))
+    r.ee_pos[5, 0] = np.nan
+    rollout.save(r, rollout.rollout_path("learned", 2, root))
+    r = rollout.load(rollout.rollout_path("base", 1, root))
+    r.meta["failure"] = "unstable"
+    rollout.save(r, rollout.rollout_path("base", 1, root))
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned")
+    assert p.returncode == 0, p.stderr
+    assert "n=2 pairs" in p.stdout
+    nonfinite = [ln for ln in p.stdout.splitlines() if ln.startswith("warning: non-finite")]
+    failed = [ln for ln in p.stdout.splitlines() if ln.startswith("warning: failed")]
+    assert len(nonfinite) == 1 and "2 (RL+Lead: ee_pos)" in nonfinite[0]
+    assert len(failed) == 1 and "1 (Classical: unstable)" in failed[0]
+
+
+def test_cli_mixed_controllers_is_one_error_line(root):
+    r = rollout.load(rollout.rollout_path("base", 3, root))
+    r.meta["controller"] = "analytic"
+    rollout.save(r, rollout.rollout_path("base", 3, root))
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned")
+    assert p.returncode == 2
+    assert len(p.stderr.strip().splitlines()) == 1
+    assert "mixes 2 controllers" in p.stderr and "analytic" in p.stderr and "base" in p.stderr
+
+
+def test_a_bug_keeps_its_traceback(root, monkeypatch):
+    def broken(*a, **k):
+        raise ValueError("a bug, not a user error")
+
+    monkeypatch.setattr(metrics, "rollout_metrics", broken)
+    args = metrics.Args(root=root, prefix_a="base", prefix_b="learned", bootstrap=200)
+    with pytest.raises(ValueError, match="a bug"):
+        metrics.main(args)
+    with pytest.raises(SystemExit) as exc:  # a user error becomes exit status 2
+        metrics.main(metrics.Args(root=root, prefix_a="nope", prefix_b="learned"))
+    assert exc.value.code == 2
