@@ -125,8 +125,8 @@ class EnvConfig:
                     raise UserError(f"{f.name} must be a finite number, got {v!r}")
                 set_(f.name, float(v))
             elif f.type in ("int", "bool") and type(v) is not (int if f.type == "int" else bool):
-                raise UserError(f"{f.name} must be {'an integer' if f.type == 'int' else 'true or false'}"
-                                f", got {v!r}")
+                kind = "an integer" if f.type == "int" else "true or false"
+                raise UserError(f"{f.name} must be {kind}, got {v!r}")
         if self.max_lead < 0:
             raise UserError(f"max_lead must be >= 0, got {self.max_lead}")
         if self.episode_steps < 1:
@@ -162,7 +162,8 @@ def config_docs() -> dict[str, str]:
     tree = ast.parse(textwrap.dedent(inspect.getsource(EnvConfig)))
     body, docs = tree.body[0].body, {}
     for a, b in zip(body, body[1:], strict=False):
-        if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
+        documented = isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)
+        if isinstance(a, ast.AnnAssign) and documented:
             docs[a.target.id] = " ".join(str(b.value.value).split())
     return docs
 
@@ -374,7 +375,7 @@ class PandaLeadEnv(gym.Env):
             raise UserError(f"render_mode must be one of {self.metadata['render_modes']}, "
                             f"got {render_mode!r}")
         self.task = LeadTask(self.cfg, 1, nthread=1)
-        self.task.rngs[0] = self.np_random  # noqa: the env's own seeded generator drives slot 0
+        self.task.rngs[0] = self.np_random  # the env's own seeded generator drives slot 0
         self.core = self.task.core
         self.dt = self.task.dt
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}

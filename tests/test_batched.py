@@ -98,7 +98,8 @@ def test_zero_action_rollout_is_the_classical_core():
     for t in range(STEPS):
         arms.step()  # no lead at all
         for i, r in enumerate(rollouts):
-            assert np.array_equal(r.qpos[t], arms.qpos[i]) and np.array_equal(r.ee_pos[t], arms.tip_pos[i])
+            assert np.array_equal(r.qpos[t], arms.qpos[i])
+            assert np.array_equal(r.ee_pos[t], arms.tip_pos[i])
 
 
 def test_sb3_vec_env_matches_gymnasium_vector_env_and_resets_in_step():
