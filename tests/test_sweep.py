@@ -159,3 +159,66 @@ def test_workers_share_a_postgres_study_and_survive_a_kill(postgres, tmp_path, m
     failed = next(t for t in trials if t.state.name == "FAIL")
     retried = [t for t in trials if t.system_attrs.get("failed_trial") == failed.number]
     assert len(retried) == 1 and retried[0].state.name == "COMPLETE"
+
+
+def test_a_password_is_never_written_printed_or_put_on_a_worker_command_line(postgres, tmp_path,
+                                                                               monkeypatch):
+    """The password given in --storage (the worst case) reaches the workers only through their
+    environment: no file of the sweep, no output line and no child's command line holds it."""
+    import psutil
+
+    postgres.createdb("secret")
+    secret = postgres.password
+    monkeypatch.delenv("PGPASSWORD", raising=False)  # the workers can only get it from the sweep
+    monkeypatch.setenv("PGPASSFILE", str(tmp_path / "no-such-pgpass"))
+    work, logs = tmp_path / "work", tmp_path / "logs"
+    work.mkdir()
+    logs.mkdir()
+    cmd = sweep_cmd("--name", "s", "--presets", "v1", "--seeds", "1", "2", "--timesteps", "256",
+                    "--eval-freq", "128", "--workers", "2", "--storage",
+                    postgres.url("secret", password=True), f"--train-args={TINY}")
+    with open(logs / "out", "w") as out, open(logs / "err", "w") as err:
+        p = subprocess.Popen(cmd, cwd=work, stdout=out, stderr=err)
+        sweep = psutil.Process(p.pid)
+        cmdlines = {}  # every descendant seen while the sweep runs: workers, their children
+        while p.poll() is None:
+            try:
+                for child in sweep.children(recursive=True):
+                    cmdlines.setdefault(child.pid, child.cmdline())
+            except psutil.Error:
+                pass  # a child that ended between the listing and the read
+            time.sleep(0.05)
+    stderr = (logs / "err").read_text()
+    assert p.returncode == 0, stderr[-3000:]
+    workers = [c for c in cmdlines.values() if "--worker-id" in c]
+    assert len(workers) >= 1, cmdlines  # the check below looked at real worker command lines
+    assert not [c for c in cmdlines.values() if secret in " ".join(c)]
+    assert "per configuration" in (logs / "out").read_text()
+    for stream in ("out", "err"):
+        assert secret not in (logs / stream).read_text()
+    commands = list(work.glob("sweeps/s/runs/*/command.txt"))
+    assert len(commands) == 2 and all("--storage" in c.read_text() for c in commands)
+    leaks = [f for f in work.rglob("*") if f.is_file() and secret.encode() in f.read_bytes()]
+    assert not leaks
+
+    # An unknown study: one line, the URL masked.
+    nope = subprocess.run(sweep_cmd("--report", "nope", "--storage",
+                                    postgres.url("secret", password=True)),
+                          cwd=work, capture_output=True, text=True)
+    assert nope.returncode == 2, nope.stderr
+    assert f"error: no study named 'nope' in {postgres.url('secret')}\n" in nope.stderr
+    assert secret not in nope.stdout + nope.stderr and "Traceback" not in nope.stderr
+    # A wrong password: libpq's reason in one line, neither password shown.
+    wrong = subprocess.run(sweep_cmd("--report", "s", "--storage",
+                                     postgres.url("secret").replace("@", ":Wr0ngPw@")),
+                           cwd=work, capture_output=True, text=True)
+    assert wrong.returncode == 2 and "password authentication failed" in wrong.stderr, wrong.stderr
+    assert "Wr0ngPw" not in wrong.stderr and "Traceback" not in wrong.stderr
+    # The recommended set-up: a password-less URL, the password in ~/.pgpass (here PGPASSFILE).
+    pgpass = tmp_path / "pgpass"
+    pgpass.write_text(f"{postgres.host}:{postgres.port}:secret:{postgres.user}:{secret}\n")
+    pgpass.chmod(0o600)  # libpq ignores a pgpass file that others can read
+    rep = subprocess.run(sweep_cmd("--report", "s", "--storage", postgres.url("secret")),
+                         cwd=work, capture_output=True, text=True,
+                         env={**os.environ, "PGPASSFILE": str(pgpass)})
+    assert rep.returncode == 0 and "95% interval" in rep.stdout, rep.stderr[-2000:]
