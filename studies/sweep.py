@@ -162,8 +162,8 @@ def storage_for(args: Args, name: str):
             # (libpq never repeats the password; the URL is shown masked).
             reason = " ".join(str(exc.orig or exc).split())
             raise UserError(f"cannot open the study storage {shown(url)}: {reason}") from None
-        except ImportError as exc:
-            raise UserError(f"no database driver for {shown(url)} ({exc.name} is not installed); "
+        except ImportError:
+            raise UserError(f"the database driver of {shown(url)} is not installed; "
                             "postgresql://... uses psycopg 3, which is") from None
     raise RuntimeError(f"could not open the Optuna storage {shown(url)}")
 
@@ -367,6 +367,9 @@ def archive(args: Args, name: str) -> None:
     # Chosen on the evaluation-set error (the objective), never on test seeds.
     best = min(done, key=lambda t: t.value)
     run_dir = Path(best.user_attrs["run_dir"])
+    if not (run_dir / "config.json").is_file():
+        raise UserError(f"trial #{best.number}'s run folder {run_dir} is not here: run --archive "
+                        "on the machine that ran it, or copy the folder to that path first")
     config = json.loads((run_dir / "config.json").read_text())
     path = training.archive_model(run_dir, args.archive_as or name, config)
     print(f"best trial #{best.number} ({best.value:.2f} cm, {best.params}) -> {path}")
