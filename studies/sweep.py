@@ -1,15 +1,18 @@
 """Grids of presets x training seeds, and hyperparameter searches, on Optuna.
 
-    uv run sweep.py --name ladder --presets v1 v5 v9 --seeds 1 2 3 --timesteps 500000
-    uv run sweep.py --name hp --search --n-trials 30 --timesteps 400000 --workers 2
-    uv run sweep.py --report ladder
-    uv run sweep.py --archive ladder --archive-as ladder_best
-    uv run sweep.py --archive ladder --archive-preset v5 --archive-as v5   # best seed of v5
+    uv run studies/sweep.py --name ladder --presets v1 v5 v9 --seeds 1 2 3 --timesteps 500000
+    uv run studies/sweep.py --name hp --search --n-trials 30 --timesteps 400000 --workers 2
+    uv run studies/sweep.py --report ladder
+    uv run studies/sweep.py --archive ladder --archive-as ladder_best
+    uv run studies/sweep.py --archive ladder --archive-preset v5 --archive-as v5  # best v5 seed
 
 Every trial is a train.py run (the same `train.train` code path) with its own run folder
 under sweeps/<name>/runs/; its objective is the best evaluation-set mean tracking error in cm
 (never a test seed). The study lives in an Optuna storage: by default a SQLite file
-sweeps/<name>.db; with `--storage postgresql://...` any number of machines share one study.
+sweeps/<name>.db; with `--storage postgresql://user@host:port/db` any number of machines share
+one study. The password comes from PGPASSWORD or ~/.pgpass (libpq reads both), never from a
+file this writes: a password given in the URL is moved into the workers' environment and masked
+wherever the URL is printed or recorded. docs/sweeps.md is the guide.
 A grid maps Optuna's trial numbers one-to-one onto grid points, so no point runs twice; a
 worker that dies mid-trial stops sending heartbeats, its trial is marked failed after the
 grace period and retried once per failure (RetryFailedTrialCallback). Rerunning the same
@@ -25,12 +28,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import math
+import os
 import shlex
 import subprocess
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import tyro
+
+from errors import UserError, exit_on_user_error
 
 SWEEPS_DIR = Path("sweeps")
 
@@ -54,7 +60,8 @@ class Args:
     workers: int = 1
     """Trials run in parallel on this machine (each gets cores/workers cores)."""
     storage: str | None = None
-    """Optuna storage URL (default: sqlite:///sweeps/<name>.db); postgresql://... for many machines."""
+    """Optuna storage URL (default: sqlite:///sweeps/<name>.db); postgresql://user@host:port/db for
+    many machines, the password in PGPASSWORD or ~/.pgpass."""
     heartbeat: int = 30
     """Seconds between a running trial's heartbeats; a trial silent for 3x this is failed."""
     max_retry: int = 2
@@ -73,10 +80,63 @@ class Args:
     """(internal) set for the worker processes this command starts."""
 
 
+def _parse_url(url: str):
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        return make_url(url)
+    except ArgumentError:
+        # SQLAlchemy's message does not repeat the URL; ours must not either (a password).
+        raise UserError("--storage is not a database URL (e.g. postgresql://user@host:5432/db "
+                        "or sqlite:///sweeps/name.db)") from None
+
+
+def shown(url: str) -> str:
+    """The URL as it may be printed or written anywhere: any password replaced by ***."""
+    u = _parse_url(url)
+    if "password" in u.query:
+        u = u.update_query_dict({"password": "***"})
+    return u.render_as_string(hide_password=True)
+
+
+def take_password(args: Args) -> Args:
+    """Move a password out of --storage into PGPASSWORD, where libpq (and so every worker this
+    starts, through its environment) finds it, and out of sys.argv, which training.py writes to
+    each trial's command.txt and which the workers' command lines are built from. The shell
+    that started this process still shows it in `ps`: PGPASSWORD or ~/.pgpass avoid that."""
+    from sqlalchemy.engine import URL
+
+    if not args.storage:
+        return args
+    u = _parse_url(args.storage)
+    query = dict(u.query)
+    password = u.password if u.password is not None else query.pop("password", None)
+    if password is None:
+        return args
+    clean = URL.create(u.drivername, u.username, None, u.host, u.port, u.database,
+                       query).render_as_string(hide_password=False)
+    os.environ["PGPASSWORD"] = str(password)
+    sys.argv = [a.replace(args.storage, clean) for a in sys.argv]
+    print("warning: a password in --storage is visible to `ps` for this command; put it in "
+          "PGPASSWORD or ~/.pgpass instead (see docs/sweeps.md)", file=sys.stderr)
+    return replace(args, storage=clean)
+
+
+def engine_url(url: str) -> str:
+    """postgresql:// (and postgres://) -> postgresql+psycopg://: the psycopg 3 driver this project
+    installs, whatever SQLAlchemy's default driver for the plain scheme is (psycopg2 before 2.1)."""
+    u = _parse_url(url)
+    if u.drivername in ("postgresql", "postgres"):
+        u = u.set(drivername="postgresql+psycopg")
+    return u.render_as_string(hide_password=False)
+
+
 def storage_for(args: Args, name: str):
     import warnings
 
     import optuna
+    import sqlalchemy.exc
     from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
 
     # Heartbeats and the stale-trial retry are marked experimental; they are what we rely on.
@@ -86,11 +146,10 @@ def storage_for(args: Args, name: str):
     if url.startswith("sqlite:///"):
         Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    import sqlalchemy.exc
 
     for attempt in range(5):
         try:
-            return RDBStorage(url, heartbeat_interval=args.heartbeat,
+            return RDBStorage(engine_url(url), heartbeat_interval=args.heartbeat,
                               grace_period=3 * args.heartbeat,
                               heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(
                                   max_retry=args.max_retry))
@@ -98,7 +157,15 @@ def storage_for(args: Args, name: str):
             # Machines started at once on a fresh database race to create Optuna's tables;
             # the loser retries and finds them made.
             time.sleep(0.5 + attempt)
-    raise RuntimeError(f"could not open the Optuna storage {url}")
+        except sqlalchemy.exc.OperationalError as exc:
+            # Unreachable server, wrong password, no such database: libpq's reason, one line
+            # (libpq never repeats the password; the URL is shown masked).
+            reason = " ".join(str(exc.orig or exc).split())
+            raise UserError(f"cannot open the study storage {shown(url)}: {reason}") from None
+        except ImportError:
+            raise UserError(f"the database driver of {shown(url)} is not installed; "
+                            "postgresql://... uses psycopg 3, which is") from None
+    raise RuntimeError(f"could not open the Optuna storage {shown(url)}")
 
 
 def grid_space(args: Args) -> dict:
@@ -227,6 +294,8 @@ def launch(args: Args) -> None:
         work(args)
         return
     storage_for(args, args.name)  # create the schema once, before the workers race for it
+    # sys.argv holds no password (take_password); PGPASSWORD reaches the workers through the
+    # environment they inherit, which, unlike a command line, other users cannot read.
     procs = [subprocess.Popen([sys.executable, __file__, *sys.argv[1:], "--worker-id", str(i)])
              for i in range(args.workers)]
     codes = [p.wait() for p in procs]
@@ -244,7 +313,8 @@ def report(args: Args, name: str) -> None:
     try:
         study = optuna.load_study(study_name=name, storage=storage_for(args, name))
     except KeyError:
-        raise SystemExit(f"error: no study named {name!r} in {args.storage or 'sweeps/'}") from None
+        where = shown(args.storage) if args.storage else f"{SWEEPS_DIR}/"
+        raise UserError(f"no study named {name!r} in {where}") from None
     trials = study.get_trials(deepcopy=False)
     table = Table(title=f"study {name}: {len(trials)} trials")
     for col in ("#", "state", "configuration", "seed", "eval error (cm)", "wall (s)"):
@@ -283,23 +353,31 @@ def archive(args: Args, name: str) -> None:
 
     import training
 
-    study = optuna.load_study(study_name=name, storage=storage_for(args, name))
+    try:
+        study = optuna.load_study(study_name=name, storage=storage_for(args, name))
+    except KeyError:
+        where = shown(args.storage) if args.storage else f"{SWEEPS_DIR}/"
+        raise UserError(f"no study named {name!r} in {where}") from None
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     if args.archive_preset is not None:
         done = [t for t in done if t.params.get("preset") == args.archive_preset]
     if not done:
         which = f" with preset {args.archive_preset!r}" if args.archive_preset else ""
-        raise SystemExit(f"error: study {name!r} has no completed trial{which}")
+        raise UserError(f"study {name!r} has no completed trial{which}")
     # Chosen on the evaluation-set error (the objective), never on test seeds.
     best = min(done, key=lambda t: t.value)
     run_dir = Path(best.user_attrs["run_dir"])
+    if not (run_dir / "config.json").is_file():
+        raise UserError(f"trial #{best.number}'s run folder {run_dir} is not here: run --archive "
+                        "on the machine that ran it, or copy the folder to that path first")
     config = json.loads((run_dir / "config.json").read_text())
     path = training.archive_model(run_dir, args.archive_as or name, config)
     print(f"best trial #{best.number} ({best.value:.2f} cm, {best.params}) -> {path}")
 
 
+@exit_on_user_error
 def main() -> None:
-    args = tyro.cli(Args)
+    args = take_password(tyro.cli(Args, description=__doc__))
     if args.report:
         report(args, args.report)
     elif args.archive:
@@ -314,8 +392,7 @@ def main() -> None:
                 if p != "default":
                     get_preset(p)  # "did you mean" before any work starts
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            raise SystemExit(2) from None
+            raise UserError(str(exc)) from None
         launch(args)
         report(args, args.name)
 
