@@ -84,12 +84,25 @@ def policy_spec(model) -> dict:
             "log_std_init": float(kw.get("log_std_init", 0.0))}
 
 
+# A JSON member of the zip (SB3 ignores it) holding the env config the weights were trained
+# for: a sidecar can be rewritten or swapped, but then it no longer matches this.
+ENV_MEMBER = "lead_env_config.json"
+
+
+def _add_env_member(zip_path, env_config: dict) -> None:
+    with zipfile.ZipFile(zip_path, "a") as z:
+        z.writestr(ENV_MEMBER, json.dumps(EnvConfig.from_dict(env_config).to_dict(),
+                                          sort_keys=True))
+
+
 def save_model(model, path: Path, sidecar: dict) -> Path:
-    """Save an SB3 model and its sidecar atomically; the sidecar (with the zip's hash) lands
-    last, so a zip without a matching sidecar is never trusted."""
+    """Save an SB3 model and its sidecar atomically; the zip carries its env config too, and
+    the sidecar (with the zip's hash) lands last, so a zip without a matching sidecar is never
+    trusted."""
     path = Path(path).with_suffix(".zip")
     with atomic_write(path, ".tmp.zip") as tmp:
         model.save(tmp)
+        _add_env_member(tmp, sidecar["env_config"])
     rates = {"physics_hz": PHYSICS_HZ, "control_hz": CONTROL_HZ}
     full = {**sidecar, "policy": policy_spec(model), "rates": rates,
             "commit": sidecar.get("commit") or git_commit(), "model_sha256": file_sha256(path)}
@@ -101,6 +114,12 @@ def bind_sidecar(model_path: Path) -> None:
     """Write the zip's hash into its sidecar: only for a pair you trust (e.g. archive/ before
     sidecars carried hashes)."""
     side = read_sidecar(model_path)
+    with zipfile.ZipFile(model_path) as z:
+        has = ENV_MEMBER in z.namelist()
+    if not has:
+        with atomic_write(model_path, ".tmp.zip") as tmp:
+            Path(tmp).write_bytes(Path(model_path).read_bytes())
+            _add_env_member(tmp, side["env_config"])
     side["model_sha256"] = file_sha256(model_path)
     write_json_atomic(sidecar_path(model_path), side)
 
@@ -224,6 +243,21 @@ def load_policy(model_path: str | Path, device: str = "cpu"):
         env_config = EnvConfig.from_dict(side["env_config"])
     except UserError as exc:
         raise ModelError(f"{sidecar_path(model_path)}: {exc}") from None
+    try:
+        with zipfile.ZipFile(model_path) as z:
+            stored = EnvConfig.from_dict(json.loads(z.read(ENV_MEMBER)))
+    except KeyError:
+        raise ModelError(f"{model_path}: the zip holds no {ENV_MEMBER}, so its env config cannot "
+                         "be checked against the sidecar (saved before models carried it; "
+                         "bind a pair you trust with models.bind_sidecar)") from None
+    except (OSError, zipfile.BadZipFile, ValueError, UserError, TypeError) as exc:
+        raise ModelError(f"{model_path}: cannot load model ({ENV_MEMBER}: {exc})") from None
+    if stored != env_config:
+        diff = [k for k in stored.to_dict() if getattr(stored, k) != getattr(env_config, k)]
+        raise ModelError(f"{model_path}: the sidecar's env config differs from the one the model "
+                         f"was trained with ({', '.join(diff)}: sidecar "
+                         f"{getattr(env_config, diff[0])!r}, model {getattr(stored, diff[0])!r}); "
+                         "the sidecar does not belong to this model")
     state = _read_tensors(model_path, "policy.pth", device)
     if not isinstance(state, dict):
         raise ModelError(f"{model_path}: cannot load model (policy.pth holds no state dict)")
