@@ -628,7 +628,7 @@ print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {see
 
 def write_card(zip_path: Path, side: dict) -> Path:
     """archive/NAME.md: what the model is, its config, its test results, how to load it."""
-    from models import write_json_atomic  # noqa: F401  (same atomic discipline below)
+    from seeds import TEST_SEEDS
 
     name = zip_path.stem
     train = side.get("train_config", {})
@@ -639,16 +639,17 @@ def write_card(zip_path: Path, side: dict) -> Path:
         f"| {s} | {test[f'{s}/mean_error_cm']:.2f} | {test[f'{s}/in_band_pct']:.1f} |"
         for s in ("circle", "fig8", "fly") if f"{s}/mean_error_cm" in test)
     preset = train.get("preset")
+    from_preset = f" from preset `{preset}`" if preset else ""
     text = f"""# Model card: {name}
 
 A PPO policy (stable-baselines3, MLP {train.get('net_arch', '?')}) that outputs a Cartesian
 lead added to the IK target of a classical IK+PD Franka Panda controller (`PandaLead-v0`).
-Trained {side.get('timesteps', '?'):,} steps{f" from preset `{preset}`" if preset else ""}, seed
-{train.get('seed', '?')}, {side.get('wall_time_s', '?')} s, code commit `{side.get('commit', '?')}`.
+Trained {side.get('timesteps', '?'):,} steps{from_preset}, seed {train.get('seed', '?')}, \
+{side.get('wall_time_s', '?')} s, code commit `{side.get('commit', '?')}`.
 Files: `{name}.zip` (SB3 format), `{name}.json` (sidecar: the full env and training config and
 `model_sha256`, the zip's SHA-256), this card.
 
-## Test results (seeds 0-99, 5 s episodes, shape drawn from the seed)
+## Test results (seeds {TEST_SEEDS[0]}-{TEST_SEEDS[-1]}, 5 s episodes, shape drawn from the seed)
 
 | set | mean error (cm) | time in 5 cm band (%) |
 |---|---|---|
