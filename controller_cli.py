@@ -1,18 +1,37 @@
 """The command line shared by eval.py and ikpd.py: one episode to watch or record, or a seed
-range to write rollout files. Both scripts run every controller through the same code path."""
+range to write rollout files. Both scripts run every controller through the same code path.
+
+Env settings are typed flags (``--env.obs-noise target_vel 0.05``, ``--env.max-lead 0.1``);
+only the ones given apply, over the model's sidecar config (or the env's defaults)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
-import sys
-from dataclasses import dataclass
+import re
+import typing
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
 
 from atomicio import atomic_write
+from env import EnvConfig, config_docs
+from errors import UserError, did_you_mean, exit_on_user_error
+
+
+def _overrides_class():
+    """EnvConfig with every field optional (None: not given): what --env.X sets."""
+    hints = typing.get_type_hints(EnvConfig)
+    fields = [(f.name, Annotated[hints[f.name] | None, tyro.conf.arg(
+        help=config_docs()[f.name], help_behavior_hint="(default: the model's, else the env's)")],
+        field(default=None)) for f in dataclasses.fields(EnvConfig)]
+    return dataclasses.make_dataclass("EnvOverrides", fields, frozen=True)
+
+
+EnvOverrides = _overrides_class()
 
 
 @dataclass
@@ -20,9 +39,10 @@ class Args:
     seed: int | None = None
     """Trajectory seed of a single episode (default: a random one)."""
     seeds: str | None = None
-    """Seed range such as 0-99 or 0-4,10: write one rollout file per seed under --prefix."""
+    """Seed range such as 0-99 or 0-4,10 (at most 100,000 seeds): write one rollout file per
+    seed under --prefix."""
     prefix: str = "eval"
-    """Rollout set name: files go to <rollouts-dir>/<prefix>/seed_NNNN.npz."""
+    """Rollout set name (a plain name): files go to <rollouts-dir>/<prefix>/seed_NNNN.npz."""
     controller: Literal["policy", "classical", "analytic"] = "policy"
     """Which lead: a trained policy, none (classical), or v*tau + a*tau^2/2 (analytic)."""
     model: Path | None = None
@@ -39,37 +59,42 @@ class Args:
     """With --video: classical (left) and the policy (right) side by side on the same seed."""
     stochastic: bool = False
     """Sample policy actions instead of taking the mean."""
-    env_kwargs: str = "{}"
-    """JSON env arguments applied over the model's (e.g. '{"obs_noise": {"target_vel": 0.05}}')."""
+    env: EnvOverrides = field(default_factory=EnvOverrides)  # type: ignore[valid-type]
+    """Env settings applied over the model's (only the flags given)."""
     rollouts_dir: Path = Path("rollouts")
     """Root folder of rollout sets."""
+    force: bool = False
+    """Write into a --prefix that holds another controller's or model's rollouts (those files
+    are deleted first, so the set never mixes two)."""
     tune_tau: bool = False
     """Grid-search the analytic lead's tau on the tuning seeds (never the test seeds)."""
 
 
-class UserError(ValueError):
-    pass
+PREFIX_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
 
 
 def _validate(args: Args):
-    import json
+    import math
 
     import trajectory
     from seeds import parse_seed_range
 
     seeds = parse_seed_range(args.seeds) if args.seeds is not None else None
+    if not PREFIX_RE.fullmatch(args.prefix):
+        raise UserError(f"--prefix must be a plain name (letters, digits, _ . + -, not starting "
+                        f"with a dot; no / or ..), got {args.prefix!r}")
     if args.seed is not None and args.seed < 0:
         raise UserError(f"--seed must be a non-negative integer, got {args.seed}")
     if args.shape is not None and args.shape not in trajectory.SHAPES:
-        trajectory.sample(0, args.shape)  # raises the "did you mean" error
-    if not (args.duration > 0):
-        raise UserError(f"--duration must be positive, got {args.duration}")
+        raise UserError(f"unknown shape {args.shape!r}" + did_you_mean(args.shape, trajectory.SHAPES))
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        raise UserError(f"--duration must be a positive number, got {args.duration}")
+    if args.tau is not None and not (math.isfinite(args.tau) and args.tau >= 0):
+        raise UserError(f"--tau must be a finite number >= 0, got {args.tau}")
     if args.compare and args.video is None:
         raise UserError("--compare renders a video: add --video out.mp4")
-    try:
-        overrides = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as exc:
-        raise UserError(f"--env-kwargs is not valid JSON: {exc}") from None
+    overrides = {k: v for k, v in dataclasses.asdict(args.env).items() if v is not None}
+    EnvConfig.from_dict(overrides)  # a bad value is one clear line before any work
     return seeds, overrides
 
 
@@ -89,31 +114,84 @@ def _build(args: Args, overrides: dict):
         if path is None:
             raise UserError("no --model given and archive/ has no model; train one with "
                             "`uv run train.py --archive NAME` or use --controller classical")
-        model, env_kwargs, _ = load_policy(path)
+        model, env_kwargs, side = load_policy(path)
         meta["model"] = str(path)
+        meta["model_sha256"] = side["model_sha256"]
     if args.controller == "policy":
         act = controllers.make_policy(model, deterministic=not args.stochastic)
     elif args.controller == "analytic":
         tau = controllers.DEFAULT_TAU if args.tau is None else args.tau
         act = controllers.make_analytic(tau)
         meta["tau"] = tau
+    if args.controller != "policy":
+        meta["model"] = None
+        meta.pop("model_sha256", None)
     kwargs = {**env_kwargs, **overrides, "episode_steps": steps}
     render = "rgb_array" if args.video else None
     env = env_mod.PandaLeadEnv(**kwargs, render_mode=render)
     return env, act, meta, model
 
 
+IDENTITY_KEYS = ("controller", "model_sha256", "tau")
+
+
+def _claim_prefix(folder: Path, meta: dict, env_config: dict, force: bool):
+    """Lock a rollout folder for this run (flock: a second run on it is refused, so two runs
+    never mix) and check that it holds only rollouts of this controller, model and env; with
+    ``force``, the others are deleted. Returns the open lock file (keep it until done)."""
+    import fcntl
+
+    from rollout import read_meta
+
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = open(folder / ".lock", "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise UserError(f"{folder}: another run is writing rollouts there now; wait for it or "
+                        "choose another --prefix") from None
+    mine = {k: meta.get(k) for k in IDENTITY_KEYS}
+    others = []
+    for f in sorted(folder.glob("seed_*.npz")):
+        try:
+            m = read_meta(f)
+            theirs = {k: m.get(k) for k in IDENTITY_KEYS}
+            same_env = {**m.get("env", {}), "episode_steps": None} == {**env_config,
+                                                                      "episode_steps": None}
+        except UserError:
+            theirs, same_env = {"controller": "unreadable file"}, False
+        if theirs != mine or not same_env:
+            others.append((f, theirs))
+    if others and not force:
+        f, theirs = others[0]
+        what = theirs.get("controller") + (f" (model {theirs['model_sha256'][:12]})"
+                                           if theirs.get("model_sha256") else "")
+        lock.close()
+        raise UserError(f"{folder} holds {len(others)} rollouts of another controller, model or "
+                        f"env ({f.name}: {what}); choose another --prefix, or add --force to "
+                        "delete them and write this set")
+    for f, _ in others:
+        f.unlink()
+    return lock
+
+
 def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
     from rollout import record_many, rollout_path, save
 
     env, act, meta, _ = _build(args, overrides)
-    shapes = [args.shape] * len(seeds)
-    for r in record_many(env.cfg, act, seeds, shapes, meta):
-        seed = r.seed
-        save(r, rollout_path(args.prefix, seed, args.rollouts_dir))
-        note = f"  FAILED: {r.meta['failure']}" if r.meta.get("failure") else ""
-        print(f"seed {seed:4d} {r.shape:6s} mean error {100 * r.error.mean():6.2f} cm{note}")
-    print(f"wrote {len(seeds)} rollouts to {args.rollouts_dir / args.prefix}/")
+    folder = args.rollouts_dir / args.prefix
+    lock = _claim_prefix(folder, meta, env.cfg.to_dict(), args.force)
+    try:
+        shapes = [args.shape] * len(seeds)
+        for r in record_many(env.cfg, act, seeds, shapes, meta):
+            seed = r.seed
+            save(r, rollout_path(args.prefix, seed, args.rollouts_dir))
+            note = f"  FAILED: {r.meta['failure']}" if r.meta.get("failure") else ""
+            print(f"seed {seed:4d} {r.shape:6s} mean error {100 * r.error.mean():6.2f} cm{note}")
+    finally:
+        lock.close()
+    print(f"wrote {len(seeds)} rollouts to {folder}/")
 
 
 def _label(frame: np.ndarray, text: str) -> np.ndarray:
@@ -203,19 +281,20 @@ def tune_tau(args: Args, overrides: dict) -> None:
 def run_controller_cli(default_controller: str, default_prefix: str, argv, prog: str) -> None:
     defaults = Args(controller=default_controller, prefix=default_prefix)
     args = tyro.cli(Args, args=argv, default=defaults, prog=prog)
-    try:
-        seeds, overrides = _validate(args)
-        if args.tune_tau:
-            tune_tau(args, overrides)
-        elif seeds is not None:
-            write_rollouts(args, seeds, overrides)
+    _run(args)
+
+
+@exit_on_user_error  # UserError, ModelError, bad seeds/shapes: one line, exit 2; bugs keep traces
+def _run(args: Args) -> None:
+    seeds, overrides = _validate(args)
+    if args.tune_tau:
+        tune_tau(args, overrides)
+    elif seeds is not None:
+        write_rollouts(args, seeds, overrides)
+    else:
+        seed = args.seed if args.seed is not None else int(np.random.default_rng().integers(
+            0, 2**31 - 1))
+        if args.video:
+            write_video(args, seed, overrides)
         else:
-            seed = args.seed if args.seed is not None else int(np.random.default_rng().integers(
-                0, 2**31 - 1))
-            if args.video:
-                write_video(args, seed, overrides)
-            else:
-                watch(args, seed, overrides)
-    except ValueError as exc:  # UserError, ModelError, bad seeds/shapes: one line, no traceback
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+            watch(args, seed, overrides)

@@ -24,12 +24,15 @@ leaves a half file that a later command would trust.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from atomicio import atomic_write
+from errors import UserError
 
 ROLLOUT_DIR = Path("rollouts")
 ARRAY_KEYS = (
@@ -79,8 +82,18 @@ def rollout_path(prefix: str, seed: int, root: Path = ROLLOUT_DIR) -> Path:
     return Path(root) / prefix / f"seed_{seed:04d}.npz"
 
 
+class RolloutError(UserError, ValueError):
+    """A rollout file that cannot be read (truncated, not a rollout). Also a ValueError, for
+    callers written before UserError."""
+
+
+class NoRollouts(UserError, FileNotFoundError):
+    """A prefix with no rollout files."""
+
+
 def save(rollout: Rollout, path: Path) -> Path:
-    """Write atomically: a temporary file in the same folder, then rename over the target."""
+    """Write atomically: a temporary file in the same folder, then rename over the target. A
+    full disk is one UserError line (atomicio), the previous file intact."""
     path = Path(path)
     arrays = {k: np.asarray(getattr(rollout, k)) for k in ARRAY_KEYS}
     arrays["meta"] = np.array(json.dumps(rollout.meta, sort_keys=True))
@@ -89,18 +102,36 @@ def save(rollout: Rollout, path: Path) -> Path:
     return path
 
 
+# What a damaged .npz raises inside numpy and zipfile (truncated, garbage, wrong member).
+_READ_ERRORS = (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error,
+                UnicodeDecodeError)
+
+
 def load(path: Path) -> Rollout:
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in (*ARRAY_KEYS, "meta") if k not in data.files]
             if missing:
-                raise ValueError(f"{path}: not a rollout file, missing {', '.join(missing)}")
+                raise RolloutError(f"{path}: not a rollout file, missing {', '.join(missing)}")
             fields = {k: data[k] for k in ARRAY_KEYS}
             meta = json.loads(str(data["meta"]))
-    except (OSError, EOFError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot read rollout ({exc})") from exc
+    except RolloutError:
+        raise
+    except _READ_ERRORS as exc:
+        raise RolloutError(f"{path}: cannot read rollout ({type(exc).__name__}: {exc}); the file "
+                           "is damaged or truncated, write it again") from None
     return Rollout(**fields, meta=meta)
+
+
+def read_meta(path: Path) -> dict:
+    """A rollout file's metadata alone (decompresses only that member)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return json.loads(str(data["meta"]))
+    except _READ_ERRORS as exc:
+        raise RolloutError(f"{path}: cannot read rollout ({type(exc).__name__}: {exc})") from None
 
 
 def list_prefixes(root: Path = ROLLOUT_DIR) -> list[str]:
@@ -117,7 +148,7 @@ def load_prefix(prefix: str, root: Path = ROLLOUT_DIR) -> dict[int, Rollout]:
     if not files:
         existing = list_prefixes(root)
         hint = ", ".join(existing) if existing else "none (run ikpd.py or eval.py with --prefix)"
-        raise FileNotFoundError(f"no rollouts under {folder}/; prefixes that exist: {hint}")
+        raise NoRollouts(f"no rollouts under {folder}/; prefixes that exist: {hint}")
     rollouts = [load(f) for f in files]
     return {r.seed: r for r in rollouts}
 

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+from errors import UserError
+
 TEST_SEEDS = tuple(range(0, 100))
 EVAL_SHAPES = ("circle", "fig8", "fly")
 EVAL_SEEDS_PER_SHAPE = 5
@@ -21,14 +23,18 @@ EVAL_SET = tuple(
 )
 TUNE_SEEDS = tuple(range(800_000, 800_050))
 TRAIN_SEED_LOW, TRAIN_SEED_HIGH = 10_000_000, 2**31 - 1
+# One rollout file per seed: a range larger than this is a typo (0-99999999 would be 100M files).
+MAX_SEEDS = 100_000
 
 
 def parse_seed_range(text: str) -> list[int]:
-    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work. Bad ranges raise ValueError."""
+    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work. Bad ranges, and more than
+    MAX_SEEDS seeds in all, raise UserError (before any list is built)."""
     seeds: list[int] = []
+    count = 0
     text = str(text).strip()
     if not text:
-        raise ValueError("empty seed range; use N, A-B or a comma list such as 0-9,20")
+        raise UserError("empty seed range; use N, A-B or a comma list such as 0-9,20")
     for part in text.split(","):
         part = part.strip()
         lo_s, sep, hi_s = part.partition("-")
@@ -40,12 +46,16 @@ def parse_seed_range(text: str) -> list[int]:
                     raise ValueError
                 lo, hi = int(lo_s), int(hi_s)
         except ValueError:
-            raise ValueError(
+            raise UserError(
                 f"malformed seed range {part!r}; use N, A-B (e.g. 0-99) or a comma list"
             ) from None
         if lo < 0:
-            raise ValueError(f"seed range {part!r}: seeds are non-negative integers")
+            raise UserError(f"seed range {part!r}: seeds are non-negative integers")
         if hi < lo:
-            raise ValueError(f"seed range {part!r} is empty: {hi} < {lo}")
+            raise UserError(f"seed range {part!r} is empty: {hi} < {lo}")
+        count += hi - lo + 1
+        if count > MAX_SEEDS:
+            raise UserError(f"seed range {text!r} holds more than {MAX_SEEDS:,} seeds (one file "
+                            "each); split it into smaller runs")
         seeds.extend(range(lo, hi + 1))
     return seeds

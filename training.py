@@ -1,32 +1,47 @@
-"""Training library behind `uv run train.py`: config resolution, vec envs, callbacks, the loop.
+"""Training library behind `uv run train.py`: the typed config, presets, vec envs, callbacks,
+the loop, archiving.
 
-One folder per run under runs/: config.json (resolved), command.txt, tb/ (TensorBoard),
-checkpoints/, best_model.zip (lowest evaluation-set tracking error) and final_model.zip, each
-model with its sidecar. Ctrl-C saves the model and prints how to resume.
+One folder per run under runs/: config.json (the resolved `TrainConfig`), command.txt, tb/
+(TensorBoard, progress.csv), checkpoints/, best_model.zip (lowest evaluation-set tracking
+error) and final_model.zip, each model with its sidecar. Ctrl-C or SIGTERM saves the model and
+prints how to resume.
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
-import random
+import math
+import re
 import shlex
+import shutil
+import signal
 import sys
+import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
+from env import EnvConfig
+from errors import UserError, did_you_mean
+from models import OBS_12, OBS_15, OBS_29
 from seeds import EVAL_SET
 
 
-@dataclass
-class Args:
-    preset: str | None = None
-    """A version of the reference ladder (v1..v9, see presets.py); flags override it."""
-    timesteps: int | None = None
-    """Total environment steps (default: the preset's, else 5M)."""
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides what a training run learns. config.json and every sidecar store
+    it whole; presets are values of it."""
+
+    env: EnvConfig = EnvConfig()
+    """The env's settings (see env.EnvConfig), e.g. --env.max-lead 0.1."""
+    timesteps: int = 5_000_000
+    """Total environment steps (PPO collects whole rollouts of n_steps x n_envs, so a run ends
+    at the next multiple; train.py says so)."""
     n_envs: int = 32
     """Parallel environments (reference: 8)."""
     n_steps: int = 128
@@ -46,19 +61,17 @@ class Args:
     ent_coef: float = 0.0
     """Entropy bonus coefficient."""
     net_arch: tuple[int, ...] = (64, 64)
-    """Hidden layer sizes of the policy and value MLPs."""
+    """Hidden layer sizes of the policy and value MLPs (tanh)."""
     log_std_init: float = -1.0
     """Initial log standard deviation of the Gaussian policy (reference and SB3: 0, std 1)."""
     seed: int = 42
-    """Seeds Python, numpy, torch and the environments."""
+    """Seeds Python, numpy, torch and the environments' streams."""
     device: str = "cpu"
     """Torch device (a 64x64 MLP runs fastest on the CPU)."""
     torch_threads: int = 1
     """Torch threads of the training process. One: while the policy acts, the env workers need
     every other core, and idle torch threads spin on them (2 threads on 2 cores: 3-6x slower)."""
-    env_kwargs: str = "{}"
-    """JSON of env constructor arguments, applied over the preset's, e.g. '{"max_lead": 0.1}'."""
-    vec_env: Literal["subproc", "batched", "dummy"] = "batched"
+    vec_env: Literal["batched", "subproc", "dummy"] = "batched"
     """batched: all envs in one mujoco.batch.Batch in this process (vecenv.py); subproc: SB3
     SubprocVecEnv, a process per env (the reference configuration); dummy: a loop of single
     envs in this process."""
@@ -70,72 +83,217 @@ class Args:
     """Steps per evaluation episode (500 = 5 s, as the test rollouts)."""
     checkpoint_freq: int = 500_000
     """Save a checkpoint every this many total steps."""
+    stop_below_cm: float | None = None
+    """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
+    preset: str | None = None
+    """Start from a preset (see the list above); every flag given overrides it."""
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        if isinstance(self.env, dict):
+            set_("env", EnvConfig.from_dict(self.env))
+        if not isinstance(self.env, EnvConfig):
+            raise UserError(f"env must be an EnvConfig, got {type(self.env).__name__}")
+        set_("net_arch", tuple(self.net_arch))
+        for name, low in (("timesteps", 1), ("n_envs", 1), ("n_steps", 1), ("batch_size", 2),
+                          ("n_epochs", 1), ("torch_threads", 1), ("n_workers", 0),
+                          ("eval_freq", 0), ("eval_steps", 1), ("checkpoint_freq", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise UserError(f"--{_flag(name)} must be an integer >= {low}, got {v!r}")
+        if self.n_steps * self.n_envs < 2:
+            raise UserError("a PPO rollout needs at least 2 steps: raise --n-steps or --n-envs")
+        for name, lo, hi, lo_open in (("gamma", 0, 1, True), ("gae_lambda", 0, 1, False),
+                                      ("learning_rate", 0, math.inf, True),
+                                      ("clip_range", 0, math.inf, True),
+                                      ("ent_coef", 0, math.inf, False),
+                                      ("log_std_init", -math.inf, math.inf, False)):
+            v = getattr(self, name)
+            ok = isinstance(v, int | float) and math.isfinite(v) and v <= hi and (
+                v > lo if lo_open else v >= lo)
+            if not ok:
+                rng = f"in ({lo}, {hi}]" if hi < math.inf else (">" if lo_open else ">=") + f" {lo}"
+                raise UserError(f"--{_flag(name)} must be a finite number {rng}, got {v!r}"
+                                if math.isfinite(lo) else f"--{_flag(name)} must be finite, got {v!r}")
+            set_(name, float(v))
+        if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1
+                                    for n in self.net_arch):
+            raise UserError(f"--net-arch must be positive layer sizes, got {self.net_arch!r}")
+        if self.stop_below_cm is not None and not (math.isfinite(self.stop_below_cm)
+                                                   and self.stop_below_cm > 0):
+            raise UserError(f"--stop-below-cm must be > 0, got {self.stop_below_cm!r}")
+        if self.preset is not None and self.preset not in PRESET_DOCS:
+            raise UserError(f"unknown preset {self.preset!r}" + did_you_mean(self.preset, PRESET_DOCS))
+
+    def to_dict(self) -> dict:
+        """JSON-friendly, whole: what config.json and sidecars hold."""
+        d = asdict(self)
+        d["env"] = self.env.to_dict()
+        d["net_arch"] = list(self.net_arch)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        """From config.json; also reads the format before TrainConfig (ppo sub-dict, env
+        kwargs plus env_resolved)."""
+        d = dict(d)
+        if "ppo" in d:  # the older layout
+            d.update(d.pop("ppo"))
+            d["env"] = d.pop("env_resolved", None) or d.get("env", {})
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def _flag(name: str) -> str:
+    return name.replace("_", "-")
+
+
+@dataclass(frozen=True)
+class TrainArgs(TrainConfig):
+    """train.py's command line: the training config plus where the run goes and what happens
+    around it."""
+
+    reference_hparams: bool = False
+    """Start from the reference work's PPO settings (8 SubprocVecEnv envs, n_steps 1024,
+    batch 64, lr 3e-4, log_std_init 0); flags given still override them."""
     runs_dir: Path = Path("runs")
     """Where run folders are created."""
     name: str | None = None
     """Run name prefix (default: the preset, else 'lead')."""
     resume: Path | None = None
-    """Continue a run folder from its newest checkpoint (or interrupted model)."""
+    """Continue a run folder from its newest valid checkpoint (or interrupted model); only the
+    run-time flags (--timesteps, --eval-freq, --checkpoint-freq, ...) may change."""
     archive: str | None = None
-    """At the end, copy the best model to archive/NAME.zip with its sidecar and test metrics."""
-    stop_below_cm: float | None = None
-    """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
+    """At the end, copy the best model to archive/NAME.zip with its sidecar, test metrics and a
+    model card (archive/NAME.md)."""
+    force: bool = False
+    """Replace an existing archive/NAME.zip."""
     progress: bool = True
     """Show a progress bar."""
-    reference_hparams: bool = False
-    """Use the reference work's PPO settings (8 SubprocVecEnv envs, n_steps 1024, batch 64,
-    lr 3e-4, log_std_init 0), overriding the flags above."""
-    extra: dict = field(default_factory=dict)
-    """(internal) extra fields recorded in config.json, e.g. by sweep.py."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        for flag, value in (("--name", self.name), ("--archive", self.archive)):
+            if value is not None:
+                check_plain_name(value, flag)
+
+    def config(self) -> TrainConfig:
+        return TrainConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(TrainConfig)})
 
 
-# The reference work's configuration (what `--reference-hparams` restores).
+def check_plain_name(value: str, flag: str) -> str:
+    """A file or folder name without separators or dots at the start (no ../, no /abs)."""
+    if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*", value or ""):
+        raise UserError(f"{flag} must be a plain name (letters, digits, _ . + -, not starting "
+                        f"with a dot), got {value!r}")
+    return value
+
+
+# The reference work's configuration (what `--reference-hparams` starts from).
 REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10,
                          learning_rate=3e-4, log_std_init=0.0)
 
-PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate",
-            "clip_range", "ent_coef")
+# Penetration is millimetres deep, so the weight is large: 1 cm deep costs 1 per step, about
+# ten times the distance term at a typical 10 cm error.
+COLLISION_WEIGHT = 100.0
 
 
-def resolve_config(args: Args) -> dict:
-    """Preset + flags -> one config dict: {env: {...}, ppo: {...}, timesteps, ...}."""
-    from dataclasses import replace
+def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
+    env = EnvConfig(**kw.pop("env", {}))
+    PRESET_DOCS[name] = doc
+    return name, TrainConfig(env=env, preset=name, **kw)
 
-    from presets import get_preset
 
-    if args.reference_hparams:
-        args = replace(args, **REFERENCE_HPARAMS)
-    preset = get_preset(args.preset) if args.preset else {"env": {}, "ppo": {}}
+# The reference work's ladder of versions (v1..v9), plus this repo's own `smooth`.
+PRESET_DOCS: dict[str, str] = {}
+PRESETS: dict[str, TrainConfig] = {}
+PRESETS.update([
+    _preset("v1", "circles only, 12-D observation (no target_acc)",
+            env=dict(obs_features=OBS_12, shapes=("circle",)), timesteps=1_000_000),
+    _preset("v2", "all shapes + self-collision penalty",
+            env=dict(obs_features=OBS_12, w_collision=COLLISION_WEIGHT)),
+    _preset("v3", "v2 without the collision penalty", env=dict(obs_features=OBS_12)),
+    _preset("v4", "v3 + entropy bonus ent_coef 0.01", env=dict(obs_features=OBS_12),
+            ent_coef=0.01),
+    _preset("v5", "v3 + target_acc in the observation (15-D)", env=dict(obs_features=OBS_15)),
+    _preset("v6", "v5 + joint angles and velocities (29-D) + early termination on "
+            "self-collision", env=dict(obs_features=OBS_29, terminate_on_collision=True)),
+    # The termination penalty (50) outweighs what the rest of an episode can still earn (at
+    # most ~1 per step from the tracking term, minus the distance), so ending early never pays.
+    _preset("v7", "v6 + exponential tracking reward + termination penalty",
+            env=dict(obs_features=OBS_29, terminate_on_collision=True, w_tracking=1.0,
+                     w_alive=0.0, w_termination=50.0)),
+    _preset("v9", "v5 + action-change penalty (weight 0.1) + 5 s episodes",
+            env=dict(obs_features=OBS_15, w_action_change=0.1, episode_steps=500)),
+    # The policy sees its previous action, so the action-change penalty is a Markov cost it
+    # can plan against; the penalty keeps the lead smooth (jerk), the collision term keeps the
+    # arm out of itself.
+    _preset("smooth", "v5 + prev_action observed + action-change penalty 0.5 + collision "
+            "penalty + 5 s episodes (this repo's own)",
+            env=dict(obs_features=OBS_15 + ("prev_action",), w_action_change=0.5,
+                     w_collision=COLLISION_WEIGHT, episode_steps=500)),
+])
+
+
+def get_preset(name: str) -> TrainConfig:
+    if name not in PRESETS:
+        raise UserError(f"unknown preset {name!r}" + did_you_mean(name, PRESETS))
+    return PRESETS[name]
+
+
+def preset_table() -> str:
+    return "\n".join(f"  {k:7s} {v}" for k, v in PRESET_DOCS.items())
+
+
+# Run-time settings --resume may change; the rest must stay what the run was trained with.
+RESUME_MAY_CHANGE = ("timesteps", "eval_freq", "eval_steps", "checkpoint_freq", "stop_below_cm",
+                     "device", "torch_threads", "n_workers")
+
+
+def parse_args(argv: list[str], prog: str | None = None, description: str | None = None
+               ) -> TrainArgs:
+    """The command line -> TrainArgs. ``--preset NAME`` (or ``--resume RUN``: the run's
+    config) and ``--reference-hparams`` choose the defaults; every flag given overrides them,
+    even when it equals the plain default. ``--preset v5 --help`` shows v5's values."""
+    import tyro
+
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--preset")
+    pre.add_argument("--resume")
+    pre.add_argument("--reference-hparams", action="store_true")
+    known, _ = pre.parse_known_args(argv)
+    if known.resume:
+        base = read_run_config(Path(known.resume))
+    elif known.preset:
+        base = get_preset(known.preset)
+    else:
+        base = TrainConfig()
+    if known.reference_hparams:
+        base = dataclasses.replace(base, **REFERENCE_HPARAMS)
+    default = TrainArgs(**{f.name: getattr(base, f.name) for f in dataclasses.fields(TrainConfig)},
+                        reference_hparams=known.reference_hparams)
+    args = tyro.cli(TrainArgs, args=argv, default=default, prog=prog, description=description)
+    if known.resume:
+        changed = [f.name for f in dataclasses.fields(TrainConfig)
+                   if f.name not in RESUME_MAY_CHANGE and getattr(args, f.name) != getattr(base, f.name)]
+        if changed:
+            raise UserError(f"--resume continues the run with its own config; "
+                            f"{', '.join('--' + _flag(c) for c in changed)} cannot change "
+                            "(start a new run instead)")
+    return args
+
+
+def read_run_config(run_dir: Path) -> TrainConfig:
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise UserError(f"--resume {run_dir}: not a run folder (no config.json)")
     try:
-        env_over = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--env-kwargs is not valid JSON: {exc}") from None
-    env_kwargs = {**preset["env"], **env_over}
-    ppo = {k: getattr(args, k) for k in PPO_KEYS}
-    defaults = Args()
-    # A preset's PPO setting wins unless the flag was changed from its default.
-    for k, v in preset.get("ppo", {}).items():
-        if getattr(args, k) == getattr(defaults, k):
-            ppo[k] = v
-    timesteps = args.timesteps or preset.get("timesteps", 5_000_000)
-    return dict(preset=args.preset, env=env_kwargs, ppo=ppo, net_arch=list(args.net_arch),
-                log_std_init=args.log_std_init,
-                timesteps=int(timesteps), n_envs=args.n_envs, seed=args.seed, device=args.device,
-                vec_env=args.vec_env, n_workers=args.n_workers, eval_freq=args.eval_freq,
-                eval_steps=args.eval_steps, stop_below_cm=args.stop_below_cm,
-                checkpoint_freq=args.checkpoint_freq, torch_threads=args.torch_threads,
-                **args.extra)
+        return TrainConfig.from_dict(json.loads(path.read_text()))
+    except (OSError, json.JSONDecodeError, TypeError) as exc:
+        raise UserError(f"{path}: unreadable run config ({exc})") from None
 
 
-def seed_everything(seed: int) -> None:
-    import torch
-
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
-
-
-def make_vec_env(env_config: dict, n_envs: int, seed: int, kind: str = "batched",
+def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str = "batched",
                  n_workers: int = 0):
     """The training envs. batched: one `mujoco.batch.Batch` of n_envs arms in this process
     (vecenv.LeadVecEnv; n_workers = MuJoCo threads, 0 = all cores); subproc: SB3's
@@ -144,24 +302,23 @@ def make_vec_env(env_config: dict, n_envs: int, seed: int, kind: str = "batched"
     import gymnasium as gym
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
-    from env import EnvConfig
-
+    config = env_config if isinstance(env_config, EnvConfig) else EnvConfig.from_dict(env_config)
     if kind == "batched":
         from vecenv import LeadVecEnv
 
-        vec = LeadVecEnv(EnvConfig.from_dict(env_config), n_envs, nthread=n_workers)
+        vec = LeadVecEnv(config, n_envs, nthread=n_workers)
         vec.seed(seed)
         return VecMonitor(vec)
+    settings = config.to_dict()
 
     def make(rank: int):
         def thunk():
-            import signal
-
             import env  # noqa: F401  (registers PandaLead-v0 in the worker)
 
-            if kind == "subproc":  # Ctrl-C is the main process's to handle (it saves the model)
+            if kind == "subproc":  # signals are the main process's to handle (it saves the model)
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
-            e = gym.make("PandaLead-v0", max_episode_steps=-1, **env_config)
+                signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            e = gym.make("PandaLead-v0", max_episode_steps=-1, **settings)
             # Each env its own stream, spawned from the training seed (as LeadVecEnv does).
             e.reset(seed=int(np.random.SeedSequence(seed).spawn(n_envs)[rank].generate_state(1)[0]))
             return e
@@ -173,13 +330,13 @@ def make_vec_env(env_config: dict, n_envs: int, seed: int, kind: str = "batched"
     return VecMonitor(vec)
 
 
-def evaluate(act_fn, env_kwargs: dict, steps: int, episodes=EVAL_SET) -> dict:
+def evaluate(act_fn, env_kwargs: EnvConfig | dict, steps: int, episodes=EVAL_SET) -> dict:
     """Deterministic episodes on (seed, shape) pairs, played as one batch -> tracking metrics
     in cm and reward."""
-    from env import EnvConfig
     from rollout import record_many
 
-    config = EnvConfig.from_dict(env_kwargs).replace(episode_steps=steps)
+    base = env_kwargs if isinstance(env_kwargs, EnvConfig) else EnvConfig.from_dict(env_kwargs)
+    config = base.replace(episode_steps=steps)
     seeds, shapes = zip(*episodes, strict=True)
     per_shape: dict[str, list] = {}
     returns = []
@@ -197,63 +354,92 @@ def evaluate(act_fn, env_kwargs: dict, steps: int, episodes=EVAL_SET) -> dict:
     return out
 
 
-def _callbacks(run_dir: Path, config: dict, n_envs: int, on_eval=None):
+_START = time.time()
+
+
+def sidecar_for(config: TrainConfig, timesteps: int, **extra) -> dict:
+    return {"env_config": config.env.to_dict(), "train_config": config.to_dict(),
+            "timesteps": int(timesteps), "wall_time_s": round(time.time() - _START, 1), **extra}
+
+
+def _say(text: str) -> None:
+    """Print a line without tearing the progress bar."""
+    from tqdm.auto import tqdm
+
+    tqdm.write(text)
+    sys.stdout.flush()
+
+
+def _callbacks(run_dir: Path, config: TrainConfig, on_eval=None, total: int = 0,
+               progress: bool = False, signals=None):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
     from controllers import classical, make_analytic, make_policy
-    from models import save_model
+    from models import save_model, write_json_atomic
 
     class TrackingEval(BaseCallback):
-        """Evaluates on the fixed evaluation set, logs cm figures, keeps the best model."""
+        """Evaluates on the fixed evaluation set, logs cm figures beside the two baselines,
+        prints one line per evaluation, keeps the best model."""
 
         def __init__(self):
             super().__init__()
             self.best = float("inf")
+            self.best_step = None
             self.last_eval = 0
+            self.baselines: dict[str, dict] = {}
 
         def _on_training_start(self) -> None:
             self.last_eval = self.num_timesteps
-            base = evaluate(classical, config["env"], config["eval_steps"])
-            for k, v in base.items():
-                self.logger.record(f"eval_classical/{k}", v)
-            for k, v in evaluate(make_analytic(), config["env"], config["eval_steps"]).items():
-                self.logger.record(f"eval_analytic/{k}", v)
-            self.baseline = base
+            if not config.eval_freq:
+                return
+            self.baselines = {
+                "classical": evaluate(classical, config.env, config.eval_steps),
+                "analytic": evaluate(make_analytic(), config.env, config.eval_steps)}
             best_file = run_dir / "best.json"
             if best_file.is_file():  # resuming: keep the best so far
-                self.best = json.loads(best_file.read_text())["mean_error_cm"]
+                best = json.loads(best_file.read_text())
+                self.best, self.best_step = best["mean_error_cm"], best.get("timesteps")
 
         def _on_step(self) -> bool:
-            freq = config["eval_freq"]
+            freq = config.eval_freq
             if freq and self.num_timesteps - self.last_eval >= freq:
-                self.last_eval = self.num_timesteps
                 res = self.run_eval()
                 if on_eval is not None and on_eval(self.num_timesteps, res) is False:
                     return False  # e.g. an Optuna pruner said stop
-                stop = config.get("stop_below_cm")
+                stop = config.stop_below_cm
                 if stop is not None and res["mean_error_cm"] < stop:
-                    print(f"evaluation error {res['mean_error_cm']:.2f} cm < {stop} cm: stopping "
-                          f"at {self.num_timesteps} steps, {time.time() - _START:.0f} s")
+                    _say(f"evaluation error {res['mean_error_cm']:.2f} cm < {stop} cm: stopping "
+                         f"at {self.num_timesteps} steps, {time.time() - _START:.0f} s")
                     return False
             return True
 
         def run_eval(self) -> dict:
-            res = evaluate(make_policy(self.model), config["env"], config["eval_steps"])
+            self.last_eval = self.num_timesteps
+            res = evaluate(make_policy(self.model), config.env, config.eval_steps)
             for k, v in res.items():
                 self.logger.record(f"eval/{k}", v)
+            # The baselines at every evaluation step, so they draw as lines across the run.
+            for name, base in self.baselines.items():
+                for k, v in base.items():
+                    self.logger.record(f"eval_{name}/{k}", v)
             self.logger.record("eval/wall_time_s", time.time() - _START)
             self.logger.record("eval/timesteps", self.num_timesteps)
+            classical_cm = self.baselines["classical"]["mean_error_cm"]
             self.logger.record("eval/improvement_over_classical_cm",
-                               self.baseline["mean_error_cm"] - res["mean_error_cm"])
-            if res["mean_error_cm"] < self.best:
-                self.best = res["mean_error_cm"]
+                               classical_cm - res["mean_error_cm"])
+            new_best = res["mean_error_cm"] < self.best
+            if new_best:
+                self.best, self.best_step = res["mean_error_cm"], self.num_timesteps
                 save_model(self.model, run_dir / "best_model.zip",
                            sidecar_for(config, self.num_timesteps, eval_metrics=res))
-                from models import write_json_atomic
-
-                write_json_atomic(run_dir / "best.json",
-                                  {"timesteps": self.num_timesteps, **res})
+                write_json_atomic(run_dir / "best.json", {"timesteps": self.num_timesteps, **res})
             self.logger.dump(self.num_timesteps)
+            a = self.baselines["analytic"]
+            _say(f"step {self.num_timesteps:>10,}  error {res['mean_error_cm']:5.2f} cm  "
+                 f"in 5 cm band {res['in_band_pct']:5.1f}%   (classical {classical_cm:.2f} cm / "
+                 f"{self.baselines['classical']['in_band_pct']:.1f}%, analytic "
+                 f"{a['mean_error_cm']:.2f} cm / {a['in_band_pct']:.1f}%)"
+                 + ("  best" if new_best else ""))
             return res
 
     class AtomicCheckpoint(CheckpointCallback):
@@ -266,127 +452,348 @@ def _callbacks(run_dir: Path, config: dict, n_envs: int, on_eval=None):
                 save_model(self.model, path, sidecar_for(config, self.num_timesteps))
             return True
 
-    ckpt = AtomicCheckpoint(save_freq=max(config["checkpoint_freq"] // n_envs, 1),
+    class Progress(BaseCallback):
+        """A progress bar whose total is the number of steps the run will really do, and the
+        signal check: after SIGINT/SIGTERM, learn() stops at the next step."""
+
+        def _on_training_start(self) -> None:
+            self.bar = None
+            if progress:
+                from tqdm.auto import tqdm
+
+                self.bar = tqdm(total=total, unit="step", unit_scale=True, dynamic_ncols=True)
+
+        def _on_step(self) -> bool:
+            if self.bar is not None:
+                self.bar.update(min(self.training_env.num_envs, total - self.bar.n))
+            return signals is None or signals.received is None
+
+        def _on_training_end(self) -> None:
+            if self.bar is not None:
+                self.bar.close()
+
+    ckpt = AtomicCheckpoint(save_freq=max(config.checkpoint_freq // config.n_envs, 1),
                             save_path=str(run_dir / "checkpoints"), name_prefix="model")
-    return TrackingEval(), ckpt
+    return TrackingEval(), ckpt, Progress()
 
 
-_START = time.time()
+class _Signals:
+    """SIGINT and SIGTERM set a flag that makes learn() stop at the next step (the model is
+    then saved); a second signal raises KeyboardInterrupt at once. Only in the main thread."""
+
+    def __init__(self):
+        self.received: int | None = None
+        self._old: dict = {}
+
+    def _handle(self, signum, frame):
+        if self.received is not None:
+            raise KeyboardInterrupt
+        self.received = signum
+        print(f"\n{signal.Signals(signum).name}: stopping at the next step and saving "
+              "(again to stop at once)", file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self._old.items():
+            signal.signal(s, h)
 
 
-def sidecar_for(config: dict, timesteps: int, **extra) -> dict:
-    return {"env_config": config["env_resolved"], "train_config": config,
-            "timesteps": int(timesteps), "wall_time_s": round(time.time() - _START, 1), **extra}
-
-
-def newest_checkpoint(run_dir: Path) -> Path | None:
-    """The saved model with the most timesteps, by its sidecar; files without one are skipped
-    (every save writes the zip first and its sidecar last)."""
-    import zipfile
+def newest_checkpoint(run_dir: Path) -> tuple[Path, dict] | None:
+    """The valid saved model with the most timesteps: its zip must match the SHA-256 in its
+    sidecar. A damaged or half-written newest file is reported and skipped, so resuming falls
+    back to the one before."""
+    from models import ModelError, verify
 
     cands = list((run_dir / "checkpoints").glob("model_*_steps.zip"))
     cands += [run_dir / "interrupted_model.zip", run_dir / "final_model.zip"]
-    best, best_steps = None, -1
+    found = []
     for p in cands:
-        side = p.with_suffix(".json")
-        if p.is_file() and side.is_file() and zipfile.is_zipfile(p):
-            steps = json.loads(side.read_text()).get("timesteps", -1)
-            if steps > best_steps:
-                best, best_steps = p, steps
-    return best
+        if not p.is_file():
+            continue
+        try:
+            side = verify(p)
+        except ModelError as exc:
+            print(f"skipping {p}: {exc}", file=sys.stderr)
+            continue
+        found.append((int(side.get("timesteps", -1)), p, side))
+    if not found:
+        return None
+    _, p, side = max(found, key=lambda t: t[0])
+    return p, side
 
 
-def archive_model(run_dir: Path, name: str, config: dict) -> Path:
-    """Copy the run's best (else final) model to archive/NAME.zip, adding test-set metrics."""
-    from stable_baselines3 import PPO
+class _AppendingCSV:
+    """SB3's CSV writer, continuing an existing progress.csv instead of truncating it."""
 
+    def __new__(cls, filename: Path):
+        from stable_baselines3.common.logger import CSVOutputFormat
+
+        old = Path(filename).read_text() if Path(filename).is_file() else ""
+        out = CSVOutputFormat(str(filename))  # opens with "w+": truncates
+        if old.strip():
+            out.file.write(old if old.endswith("\n") else old + "\n")
+            out.file.flush()
+            out.keys = old.splitlines()[0].split(",")
+        return out
+
+
+def make_logger(folder: Path):
+    from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
+
+    folder.mkdir(parents=True, exist_ok=True)
+    tb = TensorBoardOutputFormat(str(folder))
+    # One chart with the policy and both baselines (TensorBoard's "Custom Scalars" tab).
+    tb.writer.add_custom_scalars({"tracking": {
+        "mean error (cm)": ["Multiline", ["eval/mean_error_cm", "eval_classical/mean_error_cm",
+                                          "eval_analytic/mean_error_cm"]],
+        "time in 5 cm band (%)": ["Multiline", ["eval/in_band_pct", "eval_classical/in_band_pct",
+                                                "eval_analytic/in_band_pct"]]}})
+    return Logger(str(folder), [tb, _AppendingCSV(folder / "progress.csv")])
+
+
+def archive_path(name: str) -> Path:
+    from models import ARCHIVE_DIR
+
+    return ARCHIVE_DIR / f"{check_plain_name(name, '--archive')}.zip"
+
+
+def _check_archive_free(name: str, force: bool) -> None:
+    path = archive_path(name)
+    if path.exists() and not force:
+        raise UserError(f"{path} exists; choose another --archive name, or add --force to "
+                        "replace it")
+
+
+def archive_model(run_dir: Path, name: str, config=None, force: bool = False) -> Path:
+    """Copy the run's best (else final) model to archive/NAME.zip, byte for byte, with a sidecar
+    holding test-set metrics and a model card archive/NAME.md. Refuses to replace an existing
+    archived model unless ``force``. (``config`` is unused: the source's sidecar says it.)"""
     from controllers import make_policy
-    from models import ARCHIVE_DIR, read_sidecar, save_model
+    from models import file_sha256, load_policy, write_json_atomic
     from seeds import TEST_SEEDS
 
+    _check_archive_free(name, force)
     src = run_dir / "best_model.zip"
     if not src.is_file():
         src = run_dir / "final_model.zip"
-    side = read_sidecar(src)
-    model = PPO.load(src, device="cpu")
-    test = evaluate(make_policy(model), side["env_config"], 500,
-                    episodes=[(s, None) for s in TEST_SEEDS])
-    side = {**side, "test_metrics": test, "source": str(src), "name": name}
-    return save_model(model, ARCHIVE_DIR / f"{name}.zip", side)
+    policy, env_config, side = load_policy(src)
+    test = evaluate(make_policy(policy), env_config, 500, episodes=[(s, None) for s in TEST_SEEDS])
+    seed0 = card_number(policy, env_config)
+    dst = archive_path(name)
+    from atomicio import atomic_write
+
+    with atomic_write(dst, ".tmp.zip") as tmp:
+        shutil.copyfile(src, tmp)
+    side = {**side, "test_metrics": test, "test_seed0_mean_error_cm": seed0, "source": str(src),
+            "name": name, "model_sha256": file_sha256(dst)}
+    write_json_atomic(dst.with_suffix(".json"), side)
+    write_card(dst, side)
+    return dst
 
 
-def train(args: Args, on_eval=None) -> Path:
-    """Run (or resume) one training run; returns its folder. ``on_eval(timesteps, metrics)`` is
-    called after each evaluation and may return False to stop the run (sweep.py's pruner)."""
+def card_number(policy, env_config: dict) -> float:
+    """Mean tracking error (cm) on test seed 0, 5 s: the number the model card reproduces."""
+    from controllers import make_policy
+    from rollout import record_many
+
+    r = record_many(EnvConfig.from_dict(env_config).replace(episode_steps=500),
+                    make_policy(policy), [0])[0]
+    return float(100 * r.error.mean())
+
+
+CARD_SNIPPET = '''\
+import gymnasium as gym
+import numpy as np
+
+import env  # noqa: F401  (registers PandaLead-v0)
+from models import load_policy
+
+policy, env_config, sidecar = load_policy("{zip}")  # weights only: never unpickles
+e = gym.make("PandaLead-v0", **{{**env_config, "episode_steps": 500}}, max_episode_steps=500)
+obs, _ = e.reset(seed=0, options={{"traj_seed": 0}})
+errors, done = [], False
+while not done:
+    action, _ = policy.predict(obs, deterministic=True)
+    obs, reward, terminated, truncated, info = e.step(action)
+    errors.append(info["distance"])
+    done = terminated or truncated
+print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {seed0:.6f} cm
+'''
+
+
+def write_card(zip_path: Path, side: dict) -> Path:
+    """archive/NAME.md: what the model is, its config, its test results, how to load it."""
+    from seeds import TEST_SEEDS
+
+    name = zip_path.stem
+    train = side.get("train_config", {})
+    test = side.get("test_metrics", {})
+    env_rows = "\n".join(f"| {k} | {v} |" for k, v in sorted(side["env_config"].items()))
+    train_rows = "\n".join(f"| {k} | {v} |" for k, v in sorted(train.items()) if k != "env")
+    shape_rows = "\n".join(
+        f"| {s} | {test[f'{s}/mean_error_cm']:.2f} | {test[f'{s}/in_band_pct']:.1f} |"
+        for s in ("circle", "fig8", "fly") if f"{s}/mean_error_cm" in test)
+    preset = train.get("preset")
+    from_preset = f" from preset `{preset}`" if preset else ""
+    text = f"""# Model card: {name}
+
+A PPO policy (stable-baselines3, MLP {train.get('net_arch', '?')}) that outputs a Cartesian
+lead added to the IK target of a classical IK+PD Franka Panda controller (`PandaLead-v0`).
+Trained {side.get('timesteps', '?'):,} steps{from_preset}, seed {train.get('seed', '?')}, \
+{side.get('wall_time_s', '?')} s, code commit `{side.get('commit', '?')}`.
+Files: `{name}.zip` (SB3 format), `{name}.json` (sidecar: the full env and training config and
+`model_sha256`, the zip's SHA-256), this card.
+
+## Test results (seeds {TEST_SEEDS[0]}-{TEST_SEEDS[-1]}, 5 s episodes, shape drawn from the seed)
+
+| set | mean error (cm) | time in 5 cm band (%) |
+|---|---|---|
+| all | {test.get('mean_error_cm', float('nan')):.2f} | {test.get('in_band_pct', float('nan')):.1f} |
+{shape_rows}
+
+Test seed 0 alone: {side['test_seed0_mean_error_cm']:.6f} cm (the snippet below reproduces it).
+
+## Load it
+
+Run from the repository root. `PPO.load` would unpickle objects stored in the zip (running any
+code a tampered file carries); `models.load_policy` rebuilds the policy from the sidecar and
+reads only tensors (`torch.load(weights_only=True)`), after checking the zip's SHA-256.
+
+```python
+{CARD_SNIPPET.format(zip=zip_path.as_posix(), seed0=side['test_seed0_mean_error_cm'])}```
+
+## Env config
+
+| setting | value |
+|---|---|
+{env_rows}
+
+## Training config
+
+| setting | value |
+|---|---|
+{train_rows}
+"""
+    from atomicio import atomic_write
+
+    out = zip_path.with_suffix(".md")
+    with atomic_write(out, ".tmp.md") as tmp:
+        Path(tmp).write_text(text)
+    return out
+
+
+def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
+    """Run (or resume) one training run; returns its folder. ``args`` as `parse_args` makes
+    them (the preset already applied). ``on_eval(timesteps, metrics)`` is called after each
+    evaluation and may return False to stop the run (sweep.py's pruner); ``extra`` is recorded
+    in config.json (e.g. sweep.py's trial)."""
     global _START
     _START = time.time()
+    import torch
     from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.utils import set_random_seed
 
-    import env as env_mod
-    from models import save_model, write_json_atomic
+    from models import load_training_state, save_model, write_json_atomic
 
+    if args.archive:
+        _check_archive_free(args.archive, args.force)  # before hours of training, not after
     if args.resume:
         run_dir = Path(args.resume)
-        if not (run_dir / "config.json").is_file():
-            raise ValueError(f"--resume {run_dir}: not a run folder (no config.json)")
-        config = json.loads((run_dir / "config.json").read_text())
-        if args.timesteps:
-            config["timesteps"] = int(args.timesteps)
+        config = args.config()
+        found = newest_checkpoint(run_dir)
+        if found is None:
+            raise UserError(f"--resume {run_dir}: no valid checkpoint or saved model to resume from")
+        ckpt, ckpt_side = found
     else:
-        config = resolve_config(args)
-        # Validates the settings before any work; the sidecar stores every field.
-        config["env_resolved"] = env_mod.EnvConfig.from_dict(config["env"]).to_dict()
+        config = args.config()
         stem = args.name or args.preset or "lead"
         run_dir = args.runs_dir / f"{stem}__{args.seed}__{int(time.time())}"
         run_dir.mkdir(parents=True, exist_ok=False)
-        write_json_atomic(run_dir / "config.json", config)
+        write_json_atomic(run_dir / "config.json",
+                          {**config.to_dict(), **({"extra": extra} if extra else {})})
         (run_dir / "command.txt").write_text(shlex.join([sys.executable, *sys.argv]) + "\n")
+        ckpt = ckpt_side = None
+    print(f"run folder: {run_dir}", flush=True)
 
-    seed_everything(config["seed"])
-    import torch
-
-    torch.set_num_threads(config.get("torch_threads", 1))  # runs from before the flag: 1
-    vec = make_vec_env(config["env"], config["n_envs"], config["seed"], config["vec_env"],
-                       config.get("n_workers", 0))
-    logger = configure(str(run_dir / "tb"), ["tensorboard", "csv"])
-    ckpt = newest_checkpoint(run_dir) if args.resume else None
-    if args.resume and ckpt is None:
-        raise ValueError(f"--resume {run_dir}: no checkpoint or saved model to resume from")
-    if ckpt:
-        model = PPO.load(ckpt, env=vec, device=config["device"])
+    set_random_seed(config.seed)
+    torch.set_num_threads(config.torch_threads)
+    vec = make_vec_env(config.env, config.n_envs, config.seed, config.vec_env, config.n_workers)
+    logger = make_logger(run_dir / "tb")
+    ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",
+                                           "gae_lambda", "learning_rate", "clip_range", "ent_coef")}
+    model = PPO("MlpPolicy", vec, seed=config.seed, device=config.device, verbose=0,
+                policy_kwargs=dict(net_arch=list(config.net_arch), activation_fn=torch.nn.Tanh,
+                                   log_std_init=config.log_std_init), **ppo)
+    if ckpt is not None:
+        load_training_state(model, ckpt)  # tensors only, never PPO.load (see models.py)
+        model.num_timesteps = int(ckpt_side["timesteps"])
+        # Fresh training streams for the rest of the run (not a replay of its first episodes).
+        vec.seed(int(np.random.SeedSequence([config.seed, model.num_timesteps]).generate_state(1)[0]))
         print(f"resuming {run_dir} from {ckpt.name} at {model.num_timesteps} steps")
     else:
-        import torch
-
-        model = PPO("MlpPolicy", vec, seed=config["seed"], device=config["device"], verbose=0,
-                    policy_kwargs=dict(net_arch=config["net_arch"], activation_fn=torch.nn.Tanh,
-                                       log_std_init=config.get("log_std_init", 0.0)),
-                    **config["ppo"])
         table = "|param|value|\n|-|-|\n" + "\n".join(
-            f"|{k}|{v}|" for k, v in config["ppo"].items())
+            f"|{k}|{v}|" for k, v in config.to_dict().items())
         # A str value goes to TensorBoard's text tab as a table.
         logger.record("hyperparameters", table, exclude=("stdout", "csv"))
     model.set_logger(logger)
-    tracker, checkpoint = _callbacks(run_dir, config, config["n_envs"], on_eval)
-    remaining = config["timesteps"] - model.num_timesteps
-    try:
-        if remaining > 0:
-            model.learn(remaining, callback=[tracker, checkpoint], progress_bar=args.progress,
-                        reset_num_timesteps=not ckpt, tb_log_name="tb")
-            if config["eval_freq"]:
-                tracker.run_eval()
-    except KeyboardInterrupt:
+    remaining = config.timesteps - model.num_timesteps
+    per_rollout = config.n_steps * config.n_envs
+    real = math.ceil(max(remaining, 0) / per_rollout) * per_rollout
+    if remaining > 0 and real != remaining:
+        print(f"note: PPO collects whole rollouts of {config.n_steps} x {config.n_envs} = "
+              f"{per_rollout:,} steps, so this run ends at {model.num_timesteps + real:,} steps "
+              f"(asked: {config.timesteps:,})")
+    signals = _Signals()
+    tracker, checkpoint, progress = _callbacks(run_dir, config, on_eval, real,
+                                               args.progress, signals)
+    print("training started", flush=True)
+    interrupted = None
+    with signals:
+        try:
+            if remaining > 0:
+                model.learn(remaining, callback=[tracker, checkpoint, progress],
+                            reset_num_timesteps=ckpt is None)
+        except KeyboardInterrupt:
+            interrupted = signals.received or signal.SIGINT
+        interrupted = interrupted or signals.received
+    if interrupted:
         path = save_model(model, run_dir / "interrupted_model.zip",
                           sidecar_for(config, model.num_timesteps))
         print(f"\ninterrupted at {model.num_timesteps} steps; saved {path}\n"
-              f"resume with: uv run train.py --resume {run_dir}")
+              f"resume with: uv run train.py --resume {run_dir}", flush=True)
         vec.close()
-        raise SystemExit(130) from None
-    save_model(model, run_dir / "final_model.zip", sidecar_for(config, model.num_timesteps))
+        raise SystemExit(128 + int(interrupted))
+    if config.eval_freq and tracker.last_eval != model.num_timesteps and remaining > 0:
+        tracker.run_eval()
+    final = save_model(model, run_dir / "final_model.zip", sidecar_for(config, model.num_timesteps))
     vec.close()
-    print(f"run folder: {run_dir}")
+    _summary(run_dir, tracker, model.num_timesteps, final)
     if args.archive:
-        path = archive_model(run_dir, args.archive, config)
-        print(f"archived: {path} (+ {path.with_suffix('.json').name})")
+        path = archive_model(run_dir, args.archive, force=args.force)
+        print(f"archived: {path} (+ {path.with_suffix('.json').name}, "
+              f"{path.with_suffix('.md').name})")
     return run_dir
+
+
+def _summary(run_dir: Path, tracker, steps: int, final: Path) -> None:
+    best = run_dir / "best_model.zip"
+    model = best if best.is_file() else final
+    lines = [f"done: {steps:,} steps in {time.time() - _START:.0f} s; run folder {run_dir}"]
+    if tracker.best_step is not None:
+        base = tracker.baselines
+        lines.append(f"best evaluation error {tracker.best:.2f} cm at {tracker.best_step:,} steps "
+                     f"(classical {base['classical']['mean_error_cm']:.2f} cm, analytic "
+                     f"{base['analytic']['mean_error_cm']:.2f} cm): {best}")
+    else:
+        lines.append(f"no evaluation ran (--eval-freq 0); final model: {final}")
+    prefix = run_dir.name.split("__")[0]
+    lines += ["next: test it on the test seeds and compare with the classical controller:",
+              f"  uv run eval.py --seeds 0-99 --prefix {prefix} --model {model}",
+              "  uv run ikpd.py --seeds 0-99 --prefix ikpd",
+              f"  uv run metrics.py --prefix-a ikpd --prefix-b {prefix}"]
+    print("\n".join(lines), flush=True)

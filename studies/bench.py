@@ -30,7 +30,7 @@ class Args:
     repeats: int = 7
     """Repeats per micro-benchmark (the median is reported)."""
     max_workers: int = 0
-    """Largest worker count for the vectorised figures (0: the number of cores)."""
+    """Largest MuJoCo thread count for the batched figures (0: the number of cores)."""
     ppo_iterations: int = 4
     """PPO iterations timed per configuration (after one warm-up iteration)."""
     quick: bool = False
@@ -49,30 +49,34 @@ def median_time(fn, repeats: int) -> float:
 
 
 def bench_physics(n: int, repeats: int) -> float:
-    """Microseconds for 5 x mj_step of the scene (one env step's worth of physics)."""
+    """Microseconds for 5 x mj_step of the scene (one env step's worth of physics), one
+    MjData, the arm moving (a sinusoidal joint goal), as the envs do."""
     import mujoco
 
-    from core import HOME_QPOS, load_model
+    from core import home_qpos, load_model
 
     m = load_model()
     d = mujoco.MjData(m)
-    d.qpos[:7] = d.ctrl[:7] = HOME_QPOS
+    home = home_qpos()
+    goals = home + 0.3 * np.sin(np.arange(n)[:, None] * 0.05 + np.arange(7))
 
     def run():
-        for _ in range(n):
+        mujoco.mj_resetDataKeyframe(m, d, 0)
+        for g in goals:
+            d.ctrl[:7] = g
             mujoco.mj_step(m, d, 5)
 
     run()
     return median_time(run, repeats) / n * 1e6
 
 
-def bench_env(n: int, repeats: int) -> tuple[float, float]:
-    """Microseconds per step through gymnasium.make (all wrappers), and per core step alone."""
+def bench_single_env(n: int, repeats: int) -> float:
+    """Microseconds per step through gymnasium.make (all wrappers), random actions."""
     import gymnasium as gym
 
     import env  # noqa: F401
 
-    e = gym.make("PandaLead-v0", episode_steps=n + 1)
+    e = gym.make("PandaLead-v0", episode_steps=n + 1, max_episode_steps=n + 1)
     actions = np.random.default_rng(0).uniform(-1, 1, (n, 3)).astype(np.float32)
 
     def run():
@@ -81,23 +85,36 @@ def bench_env(n: int, repeats: int) -> tuple[float, float]:
             e.step(a)
 
     run()
-    full = median_time(run, repeats) / n * 1e6
-    core = e.unwrapped.core
-    leads = actions.astype(float) * 0.15
-
-    def run_core():
-        core.reset(e.unwrapped.traj, n + 1)
-        for lead in leads:
-            core.step(lead)
-
-    return full, median_time(run_core, repeats) / n * 1e6
+    return median_time(run, repeats) / n * 1e6
 
 
-def bench_vec(kind: str, n_envs: int, workers: int, seconds: float) -> float:
-    """Env steps per second of a vectorised env stepping random actions."""
+def bench_batched(n_envs: int, threads: int, steps: int, repeats: int) -> tuple[float, float]:
+    """(CPU us per env step, wall env steps/s) of the SB3 view of the batched env (what PPO
+    steps: IK, physics, contacts, reward, observation, in-step resets), random actions."""
+    from env import EnvConfig
+    from vecenv import LeadVecEnv
+
+    vec = LeadVecEnv(EnvConfig(), n_envs, nthread=threads)
+    vec.seed(0)
+    vec.reset()
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, n_envs, 3)).astype(np.float32)
+    cpu, wall = [], []
+    for _ in range(repeats):
+        c, t = time.process_time(), time.perf_counter()
+        for a in actions:
+            vec.step_async(a)
+            vec.step_wait()
+        cpu.append(time.process_time() - c)
+        wall.append(time.perf_counter() - t)
+    total = steps * n_envs
+    return statistics.median(cpu) / total * 1e6, total / statistics.median(wall)
+
+
+def bench_subproc(n_envs: int, seconds: float) -> float:
+    """Env steps per second of SB3's SubprocVecEnv (a process per env), random actions."""
     from training import make_vec_env
 
-    vec = make_vec_env({}, n_envs, 0, kind, workers)
+    vec = make_vec_env({}, n_envs, 0, "subproc")
     vec.reset()
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (64, n_envs, 3)).astype(np.float32)
@@ -175,16 +192,16 @@ def bench_memory(timesteps: int) -> tuple[float, float]:
 
 
 def repo_default() -> dict:
-    from training import Args as TrainArgs
+    from training import TrainConfig
 
-    a = TrainArgs()
+    a = TrainConfig()
     return dict(n_envs=a.n_envs, vec_env=a.vec_env, n_workers=a.n_workers, n_steps=a.n_steps,
                 batch_size=a.batch_size, n_epochs=a.n_epochs, learning_rate=a.learning_rate,
                 log_std_init=a.log_std_init, torch_threads=a.torch_threads)
 
 
 def main() -> None:
-    args = tyro.cli(Args)
+    args = tyro.cli(Args, description=__doc__)
     cores = os.cpu_count() or 1
     max_workers = args.max_workers or cores
     reps = 3 if args.quick else args.repeats
@@ -197,18 +214,25 @@ def main() -> None:
         print(f"{name}: {value}", flush=True)
 
     physics = bench_physics(n, reps)
-    row("raw physics, 5 x mj_step (one env step)", f"{physics:.1f} us")
-    full, core = bench_env(n, reps)
-    row("env step via gymnasium.make, 1 process", f"{full:.1f} us ({full / physics:.2f}x physics)")
-    row("  of which IK + PD + physics (ArmCore.step)", f"{core:.1f} us ({core / physics:.2f}x)")
-    counts = sorted({w for w in (1, 2, 4, 8, 16, 32) if w <= max_workers} | {max_workers})
-    for w in counts:
-        rate = bench_vec("subproc", w, w, secs)
-        row(f"SB3 SubprocVecEnv, {w} envs ({w} processes)", f"{rate:,.0f} env steps/s")
-    n_batched = max(16, 2 * max_workers)
-    for w in counts:
-        rate = bench_vec("batched", n_batched, w, secs)
-        row(f"BatchedSubprocVecEnv, {n_batched} envs in {w} workers", f"{rate:,.0f} env steps/s")
+    row("raw physics, 5 x mj_step (one env step), one MjData", f"{physics:.1f} us")
+    single = bench_single_env(n, reps)
+    row("single env step via gymnasium.make", f"{single:.1f} us ({single / physics:.2f}x physics)")
+    steps = 20 if args.quick else 200
+    cpu1, rate1 = bench_batched(64, 1, steps, reps)
+    row("batched env (64 envs, 1 thread): CPU per env step",
+        f"{cpu1:.1f} us ({cpu1 / physics:.2f}x physics)")
+    n_big = 256
+    _, base = bench_batched(n_big, 1, steps // 2, reps)
+    row(f"batched env, {n_big} envs, 1 thread", f"{base:,.0f} env steps/s")
+    for threads in sorted({t for t in (2, 4, 8, 16) if t <= max_workers} | {max_workers}):
+        if threads == 1:
+            continue
+        _, rate = bench_batched(n_big, threads, steps // 2, reps)
+        row(f"batched env, {n_big} envs, {threads} threads",
+            f"{rate:,.0f} env steps/s ({rate / base:.2f}x one thread; target >= "
+            f"{0.7 * threads:.1f}x)")
+    rate = bench_subproc(max_workers, secs)
+    row(f"SB3 SubprocVecEnv, {max_workers} envs ({max_workers} processes)", f"{rate:,.0f} env steps/s")
     iters = 1 if args.quick else args.ppo_iterations
     ref = dict(reference(), n_steps=128) if args.quick else reference()
     default = repo_default()
@@ -237,7 +261,7 @@ def main() -> None:
             cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
     except (OSError, StopIteration):
         pass
-    header = (f"`{shlex.join(['uv', 'run', 'bench.py', *sys.argv[1:]])}` on {cores} cores "
+    header = (f"`{shlex.join(['uv', 'run', 'studies/bench.py', *sys.argv[1:]])}` on {cores} cores "
               f"({cpu}), {time.strftime('%Y-%m-%d')}, Python {platform.python_version()}")
     table = "\n".join([header, "", "| figure | value |", "|---|---|",
                        *[f"| {k.strip()} | {v} |" for k, v in rows]])

@@ -216,7 +216,7 @@ def objective(trial, args: Args) -> float:
     argv = [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
             "--runs-dir", str(run_root), "--name", f"t{trial.number:04d}", "--no-progress",
             *shlex.split(args.train_args)]
-    targs = tyro.cli(training.Args, args=argv)
+    targs = training.parse_args(argv)
     pruned = []
 
     def on_eval(step: int, res: dict) -> bool:

@@ -44,7 +44,7 @@ def test_train_leaves_a_complete_run_folder(trained):
     assert list((run_dir / "checkpoints").glob("model_*_steps.zip"))
     assert list((run_dir / "tb").glob("events.out.tfevents.*"))
     config = json.loads((run_dir / "config.json").read_text())
-    assert config["ppo"]["n_steps"] == 64 and config["n_envs"] == 2
+    assert config["n_steps"] == 64 and config["n_envs"] == 2 and config["env"]["max_lead"] == 0.15
 
 
 def test_resume_continues_the_step_counter_and_archives(trained):
@@ -56,7 +56,7 @@ def test_resume_continues_the_step_counter_and_archives(trained):
     assert archived.is_file()
     meta = json.loads((tmp / "archive" / "tiny.json").read_text())
     for key in ("env_config", "train_config", "timesteps", "wall_time_s", "commit",
-                "test_metrics", "rates"):
+                "test_metrics", "rates", "model_sha256", "policy"):
         assert key in meta, key
     assert meta["rates"] == {"physics_hz": 500, "control_hz": 100}
     assert 0 < meta["test_metrics"]["mean_error_cm"] < 100
@@ -104,12 +104,33 @@ def test_analytic_controller_uses_a_nonzero_lead(tmp_path):
     (["--seed", "1", "--shape", "circel", "--video", "x.mp4"], "did you mean 'circle'"),
     (["--seed", "1", "--model", "archive/nope.zip", "--controller", "policy", "--video", "x.mp4"],
      "model not found"),
+    (["--seeds", "0-1", "--prefix", "../.."], "--prefix must be a plain name"),
+    (["--seeds", "0-1", "--prefix", "/tmp/abs"], "--prefix must be a plain name"),
+    (["--seeds", "0-99999999"], "more than 100,000 seeds"),
+    (["--seeds", "0-1", "--env.obs-noise", "target_vel", "nan"], "must be a finite std"),
+    (["--seeds", "0-1", "--env.obs-noise", "targt_vel", "0.1"], "did you mean 'target_vel'"),
+    (["--seeds", "0-1", "--env.tracking-scale", "0"], "tracking_scale must be > 0"),
+    (["--seeds", "0-1", "--env.ik-iters", "0"], "ik_iters must be >= 1"),
+    (["--seeds", "0-1", "--duration", "nan"], "--duration must be a positive number"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, bad, message):
     out = run(ROOT / "ikpd.py", *bad, cwd=tmp_path)
     assert out.returncode == 2
     assert message in out.stderr and "Traceback" not in out.stderr
+    assert out.stderr.count("\n") == 1  # one line
     assert not (tmp_path / "rollouts").exists() and not (tmp_path / "x.mp4").exists()
+
+
+def test_typed_env_flags_apply_over_the_models_sidecar(tmp_path):
+    out = run(ROOT / "ikpd.py", "--seeds", "1", "--prefix", "n", "--duration", "0.2",
+              "--controller", "analytic", "--env.obs-noise", "target_vel", "0.05",
+              "--env.max-lead", "0.1", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    from rollout import load
+
+    r = load(tmp_path / "rollouts" / "n" / "seed_0001.npz")
+    assert r.meta["env"]["obs_noise"] == {"target_vel": 0.05} and r.meta["env"]["max_lead"] == 0.1
+    assert r.meta["env"]["w_distance"] == 1.0  # untouched fields keep their value
 
 
 def test_video_is_a_playable_mp4(tmp_path):

@@ -1,0 +1,247 @@
+"""train.py: the typed config and presets, signals, resume, the run's talk, TensorBoard, the
+model card. Training runs are tiny (a few hundred steps, 2 envs)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from env import EnvConfig
+from errors import UserError
+from training import PRESETS, TrainConfig, parse_args
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["--n-envs", "2", "--n-steps", "64", "--batch-size", "64", "--n-epochs", "1",
+        "--n-workers", "1", "--no-progress"]
+
+
+def run(*args, cwd, timeout=600):
+    return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, timeout=timeout, env={**os.environ, "MUJOCO_GL": "egl"})
+
+
+# --- the typed config --------------------------------------------------------------------------
+
+def test_an_explicit_flag_wins_over_the_preset_even_at_its_default():
+    # The old bug: `--preset v4 --ent-coef 0.0` trained with v4's 0.01 (0.0 was the default).
+    args = parse_args(["--preset", "v4", "--ent-coef", "0.0"])
+    assert args.ent_coef == 0.0
+    assert args.env == PRESETS["v4"].env and args.preset == "v4"
+    assert parse_args(["--preset", "v4"]).ent_coef == 0.01
+    # Flags before --preset win too; nested env flags override the preset's env field by field.
+    args = parse_args(["--env.max-lead", "0.1", "--preset", "v9", "--env.obs-noise",
+                       "target_vel", "0.05"])
+    assert args.env.max_lead == 0.1 and args.env.w_action_change == 0.1
+    assert args.env.obs_noise == {"target_vel": 0.05} and args.env.episode_steps == 500
+    args = parse_args(["--env.obs-features", "target_vel", "ee_pos"])
+    assert args.env.obs_features == ("ee_pos", "target_vel")  # canonical order
+
+
+def test_reference_hparams_is_a_starting_point_that_flags_override():
+    args = parse_args(["--reference-hparams", "--n-envs", "4"])
+    assert (args.n_envs, args.n_steps, args.learning_rate) == (4, 1024, 3e-4)
+
+
+def test_preset_help_shows_the_presets_values_and_no_internal_flags(tmp_path):
+    out = run(ROOT / "train.py", "--preset", "v4", "--help", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    text = re.sub(r"[│\s]+", " ", out.stdout)
+    assert "Train a PPO lead policy" in text  # the module description
+    assert "--ent-coef FLOAT Entropy bonus coefficient. (default: 0.01)" in text
+    assert "(default: ee_pos ee_vel target_pos target_vel)" in text  # v4's 12-D features
+    assert "smooth" in text and "--env.obs-noise" in text
+    assert "--extra" not in text and "--env-kwargs" not in text
+    assert not any(tmp_path.iterdir())
+
+
+def test_config_round_trips_and_reads_the_old_layout():
+    cfg = PRESETS["smooth"]
+    assert TrainConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    old = {"preset": "v4", "ppo": {"ent_coef": 0.01, "n_steps": 128}, "net_arch": [64, 64],
+           "env": {"obs_features": ["ee_pos"]},
+           "env_resolved": EnvConfig(obs_features=("ee_pos", "ee_vel")).to_dict(),
+           "n_envs": 32, "timesteps": 1000, "extra": {"trial": 3}}
+    got = TrainConfig.from_dict(old)
+    assert got.ent_coef == 0.01 and got.env.obs_features == ("ee_pos", "ee_vel")
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--timesteps", "0"], "--timesteps must be an integer >= 1"),
+    (["--timesteps", "-5"], "--timesteps must be an integer >= 1"),
+    (["--n-envs", "0"], "--n-envs must be an integer >= 1"),
+    (["--batch-size", "1"], "--batch-size must be an integer >= 2"),
+    (["--torch-threads", "0"], "--torch-threads must be an integer >= 1"),
+    (["--gamma", "nan"], "--gamma must be a finite number"),
+    (["--env.ik-iters", "0"], "ik_iters must be >= 1"),
+    (["--env.tracking-scale", "0"], "tracking_scale must be > 0"),
+    (["--env.obs-noise", "target_vel", "nan"], "must be a finite std"),
+    (["--env.obs-noise", "targt_vel", "0.1"], "did you mean 'target_vel'"),
+    (["--env.obs-features", "ee_pso"], "unknown observation feature"),
+    (["--preset", "v55"], "did you mean 'v5'"),
+    (["--archive", "../x"], "--archive must be a plain name"),
+    (["--resume", "nowhere"], "not a run folder"),
+])
+def test_bad_training_input_is_a_user_error(argv, message):
+    with pytest.raises(UserError, match=re.escape(message)):
+        parse_args(argv)
+
+
+def test_bad_training_input_exits_2_with_one_line(tmp_path):
+    out = run(ROOT / "train.py", "--timesteps", "0", "--runs-dir", tmp_path / "runs", cwd=tmp_path)
+    assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
+    assert out.stderr.startswith("error: --timesteps") and not (tmp_path / "runs").exists()
+
+
+# --- a tiny run, archived ----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def archived(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("train")
+    out = run(ROOT / "train.py", "--timesteps", "200", "--eval-freq", "128", "--eval-steps", "20",
+              "--checkpoint-freq", "128", "--runs-dir", tmp / "runs", "--archive", "tiny", *TINY,
+              cwd=tmp)
+    assert out.returncode == 0, out.stderr
+    return tmp, next((tmp / "runs").iterdir()), out
+
+
+def test_training_talks(archived):
+    tmp, run_dir, out = archived
+    lines = out.stdout.splitlines()
+    assert lines[0] == f"run folder: {run_dir}"
+    # 200 asked, whole rollouts of 64 x 2: the run says it ends at 256.
+    assert "so this run ends at 256 steps (asked: 200)" in out.stdout
+    evals = [x for x in lines if x.startswith("step ")]
+    assert len(evals) == 2 and all("in 5 cm band" in x and "classical" in x and "analytic" in x
+                                   for x in evals)
+    assert "best evaluation error" in out.stdout and "best_model.zip" in out.stdout
+    assert "uv run eval.py --seeds 0-99" in out.stdout and "uv run metrics.py" in out.stdout
+    config = json.loads((run_dir / "config.json").read_text())
+    assert TrainConfig.from_dict(config).n_envs == 2 and config["env"]["max_lead"] == 0.15
+
+
+def test_tensorboard_has_baselines_at_every_evaluation_and_one_chart(archived):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    _, run_dir, _ = archived
+    acc = EventAccumulator(str(run_dir / "tb")).Reload()
+    tags = acc.Tags()["scalars"]
+    policy = [e.step for e in acc.Scalars("eval/mean_error_cm")]
+    for name in ("eval_classical/mean_error_cm", "eval_analytic/mean_error_cm"):
+        assert name in tags and [e.step for e in acc.Scalars(name)] == policy
+    assert "custom_scalars__config__" in acc.PluginTagToContent("custom_scalars")
+    layout = acc.Tensors("custom_scalars__config__")[0].tensor_proto.string_val[0]
+    assert b"eval/mean_error_cm" in layout and b"eval_analytic/mean_error_cm" in layout
+
+
+def test_archive_refuses_to_overwrite_without_force(archived):
+    tmp, run_dir, _ = archived
+    before = (tmp / "archive" / "tiny.zip").read_bytes()
+    out = run(ROOT / "train.py", "--archive", "tiny", "--timesteps", "10", cwd=tmp)
+    assert out.returncode == 2 and "archive/tiny.zip exists" in out.stderr and "--force" in out.stderr
+    assert (tmp / "archive" / "tiny.zip").read_bytes() == before
+    import training
+
+    with pytest.raises(UserError, match="exists"):
+        os.chdir(tmp)
+        try:
+            training.archive_model(run_dir, "tiny")
+        finally:
+            os.chdir(ROOT)
+
+
+def test_model_card_snippet_reproduces_the_rollout(archived):
+    tmp, _, _ = archived
+    card = (tmp / "archive" / "tiny.md").read_text()
+    side = json.loads((tmp / "archive" / "tiny.json").read_text())
+    assert "PPO.load" in card and "weights_only" in card and side["model_sha256"][:12]
+    snippet = re.search(r"```python\n(.*?)```", card, re.S).group(1)
+    assert len(snippet.splitlines()) <= 20
+    (tmp / "snippet.py").write_text(snippet)
+    out = subprocess.run([sys.executable, "snippet.py"], cwd=tmp, capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "egl"},
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    printed = float(re.search(r"mean error ([\d.]+) cm", out.stdout).group(1))
+    # The same number as the card and as eval.py's rollout file of test seed 0.
+    assert f"{printed:.6f}" == f"{side['test_seed0_mean_error_cm']:.6f}"
+    ev = run(ROOT / "eval.py", "--seeds", "0", "--prefix", "card", "--model", "archive/tiny.zip",
+             cwd=tmp)
+    assert ev.returncode == 0, ev.stderr
+    from rollout import load
+
+    r = load(tmp / "rollouts" / "card" / "seed_0000.npz")
+    assert f"{100 * r.error.mean():.6f}" == f"{printed:.6f}"
+
+
+# --- signals and resume ------------------------------------------------------------------------
+
+def _wait_for(proc, text: str, timeout: float = 180) -> list[str]:
+    """Read the child's stdout until a line contains ``text`` (the event, not a sleep)."""
+    seen, deadline = [], time.time() + timeout
+    while time.time() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        seen.append(line)
+        if text in line:
+            return seen
+    raise AssertionError(f"never saw {text!r}: {''.join(seen)}")
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_to_the_main_process_alone_saves_and_resume_appends(tmp_path, sig, code):
+    cmd = [sys.executable, str(ROOT / "train.py"), "--timesteps", "1000000", "--eval-freq", "0",
+           "--checkpoint-freq", "128", "--runs-dir", str(tmp_path / "runs"), *TINY]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env={**os.environ, "MUJOCO_GL": "egl"})
+    try:
+        _wait_for(proc, "training started")
+        run_dir = next((tmp_path / "runs").iterdir())
+        csv = run_dir / "tb" / "progress.csv"
+        deadline = time.time() + 180
+        while time.time() < deadline and not (csv.is_file() and len(csv.read_text().splitlines()) >= 3):
+            time.sleep(0.1)  # a couple of PPO iterations logged
+        os.kill(proc.pid, sig)  # the main process only, not its group
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == code, err
+    assert f"resume with: uv run train.py --resume {run_dir}" in out
+    side = json.loads((run_dir / "interrupted_model.json").read_text())
+    rows_before = len(csv.read_text().splitlines())
+    if sig == signal.SIGINT:
+        return  # one resume below is enough
+    # Truncate the newest save: resume must skip it and fall back to the newest valid one.
+    interrupted = run_dir / "interrupted_model.zip"
+    interrupted.write_bytes(interrupted.read_bytes()[:300])
+    ckpts = {int(json.loads(p.read_text())["timesteps"]): p
+             for p in (run_dir / "checkpoints").glob("*.json")}
+    fallback = max(ckpts)
+    assert fallback <= side["timesteps"]
+    resumed = run(ROOT / "train.py", "--resume", run_dir, "--timesteps", str(fallback + 128),
+                  "--no-progress", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "skipping" in resumed.stderr and "interrupted_model.zip" in resumed.stderr
+    assert f"from {ckpts[fallback].stem}.zip at {fallback} steps" in resumed.stdout
+    final = json.loads((run_dir / "final_model.json").read_text())
+    assert final["timesteps"] == fallback + 128
+    assert len(csv.read_text().splitlines()) > rows_before  # appended, not cut
+
+
+def test_resume_refuses_to_change_what_the_run_learns(tmp_path):
+    run_dir = tmp_path / "r"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text(json.dumps(PRESETS["v5"].to_dict()))
+    with pytest.raises(UserError, match="--n-envs cannot change"):
+        parse_args(["--resume", str(run_dir), "--n-envs", "3"])
+    assert parse_args(["--resume", str(run_dir), "--timesteps", "7"]).timesteps == 7
