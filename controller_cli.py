@@ -12,8 +12,6 @@ from typing import Literal
 import numpy as np
 import tyro
 
-from atomicio import atomic_write
-
 
 @dataclass
 class Args:
@@ -35,8 +33,9 @@ class Args:
     """Episode length in seconds."""
     video: Path | None = None
     """Render the single episode offscreen to this MP4 instead of opening the viewer."""
-    compare: bool = False
-    """With --video: classical (left) and the policy (right) side by side on the same seed."""
+    compare: tuple[Literal["classical", "analytic", "policy"], ...] | None = None
+    """With --video: two controllers side by side on the same seed, e.g. --compare classical
+    analytic. --compare alone: classical beside --controller (the policy if that is classical)."""
     stochastic: bool = False
     """Sample policy actions instead of taking the mean."""
     env_kwargs: str = "{}"
@@ -64,8 +63,10 @@ def _validate(args: Args):
         trajectory.sample(0, args.shape)  # raises the "did you mean" error
     if not (args.duration > 0):
         raise UserError(f"--duration must be positive, got {args.duration}")
-    if args.compare and args.video is None:
+    if args.compare is not None and args.video is None:
         raise UserError("--compare renders a video: add --video out.mp4")
+    if args.compare and len(args.compare) != 2:
+        raise UserError(f"--compare takes two controllers (or none), got {' '.join(args.compare)}")
     try:
         overrides = json.loads(args.env_kwargs)
     except json.JSONDecodeError as exc:
@@ -73,34 +74,44 @@ def _validate(args: Args):
     return seeds, overrides
 
 
-def _build(args: Args, overrides: dict):
-    """-> (env, act_fn, meta) for the chosen controller; a policy's env comes from its sidecar."""
-    import controllers
+def _build(args: Args, overrides: dict, names: tuple[str, ...] | None = None):
+    """-> (env, act_fn, meta, model) for the chosen controller; a policy's env comes from its
+    sidecar. With ``names`` (a comparison): act_fn and meta are dicts by controller, on one
+    env (the policy's if one of them is the policy, so both sides run the same task)."""
     import env as env_mod
     from models import load_policy, newest_archived
 
     steps = int(round(args.duration * 100))
-    meta = {"controller": args.controller, "model": None}
+    wanted = names or (args.controller,)
     env_kwargs: dict = {}
-    act = controllers.classical
-    model = None
-    if args.controller == "policy" or args.compare:
+    model = path = None
+    if "policy" in wanted:
         path = args.model or newest_archived()
         if path is None:
             raise UserError("no --model given and archive/ has no model; train one with "
                             "`uv run train.py --archive NAME` or use --controller classical")
         model, env_kwargs, _ = load_policy(path)
-        meta["model"] = str(path)
-    if args.controller == "policy":
-        act = controllers.make_policy(model, deterministic=not args.stochastic)
-    elif args.controller == "analytic":
-        tau = controllers.DEFAULT_TAU if args.tau is None else args.tau
-        act = controllers.make_analytic(tau)
-        meta["tau"] = tau
+    acts, metas = {}, {}
+    for name in wanted:
+        acts[name], metas[name] = _controller(name, args, model, path)
     kwargs = {**env_kwargs, **overrides, "episode_steps": steps}
-    render = "rgb_array" if args.video else None
-    env = env_mod.PandaLeadEnv(**kwargs, render_mode=render)
-    return env, act, meta, model
+    env = env_mod.PandaLeadEnv(**kwargs)  # videos render the rollouts (video.py), not the env
+    if names:
+        return env, acts, metas, model
+    return env, acts[args.controller], metas[args.controller], model
+
+
+def _controller(name: str, args: Args, model, path):
+    """-> (act_fn, meta) of one controller; meta says exactly what drove the arm."""
+    import controllers
+
+    meta = {"controller": name, "model": str(path) if name == "policy" else None}
+    if name == "policy":
+        return controllers.make_policy(model, deterministic=not args.stochastic), meta
+    if name == "analytic":
+        meta["tau"] = controllers.DEFAULT_TAU if args.tau is None else args.tau
+        return controllers.make_analytic(meta["tau"]), meta
+    return controllers.classical, meta
 
 
 def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
@@ -115,47 +126,33 @@ def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
     print(f"wrote {len(seeds)} rollouts to {args.rollouts_dir / args.prefix}/")
 
 
-def _label(frame: np.ndarray, text: str) -> np.ndarray:
-    from PIL import Image, ImageDraw
-
-    img = Image.fromarray(frame)
-    ImageDraw.Draw(img).text((12, 10), text, fill=(255, 255, 255))
-    return np.asarray(img)
+def compare_pair(args: Args) -> tuple[str, str] | None:
+    """The two controllers of --compare, left then right: as named, or classical beside
+    --controller (the policy when --controller is classical, as --compare always did)."""
+    if args.compare is None:
+        return None
+    if args.compare:
+        return tuple(args.compare)
+    return "classical", args.controller if args.controller != "classical" else "policy"
 
 
 def write_video(args: Args, seed: int, overrides: dict) -> None:
-    import imageio.v2 as imageio
-
-    import controllers
+    import errors
+    import video
     from rollout import record
 
-    env, act, meta, model = _build(args, overrides)
-    every = 2  # 100 Hz control -> 50 fps video
-
-    def episode(act_fn, label):
-        frames = []
-
-        def grab(e):
-            if e.core.step_count % every == 0:
-                frames.append(_label(e.render(), label))
-
-        r = record(env, act_fn, seed, args.shape, on_step=grab)
-        return frames, r
-
-    if args.compare:
-        left, ra = episode(controllers.classical, "Classical IK+PD")
-        right, rb = episode(act, f"RL lead ({Path(meta['model']).stem})")
-        frames = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=False)]
-        summary = (f"classical {100 * ra.error.mean():.2f} cm, "
-                   f"policy {100 * rb.error.mean():.2f} cm")
-    else:
-        frames, r = episode(act, f"{args.controller} seed {seed}")
-        summary = f"{args.controller} {100 * r.error.mean():.2f} cm"
+    names = compare_pair(args) or (args.controller,)
+    env, acts, metas, _ = _build(args, overrides, names)
+    rollouts = [record(env, acts[n], seed, args.shape, metas[n]) for n in names]
     out = Path(args.video)
-    with atomic_write(out, ".tmp.mp4") as tmp:
-        imageio.mimwrite(tmp, frames, fps=100 // every, macro_block_size=1)
-    env.close()
-    print(f"seed {seed} ({env.traj.shape}): mean error {summary}; wrote {out}")
+    try:
+        video.write(out, rollouts, env.core.model)
+    except errors.UserError as exc:  # one line, exit 2 (the entry catches this module's type)
+        raise UserError(str(exc)) from None
+    finally:
+        env.close()
+    summary = ", ".join(f"{n} {100 * r.error.mean():.2f} cm" for n, r in zip(names, rollouts, strict=True))
+    print(f"seed {seed} ({rollouts[0].shape}): mean error {summary}; wrote {out}")
 
 
 def watch(args: Args, seed: int, overrides: dict) -> None:
