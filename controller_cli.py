@@ -151,7 +151,8 @@ def write_video(args: Args, seed: int, overrides: dict) -> None:
         raise UserError(str(exc)) from None
     finally:
         env.close()
-    summary = ", ".join(f"{n} {100 * r.error.mean():.2f} cm" for n, r in zip(names, rollouts, strict=True))
+    pairs = zip(names, rollouts, strict=True)
+    summary = ", ".join(f"{n} {100 * r.error.mean():.2f} cm" for n, r in pairs)
     print(f"seed {seed} ({rollouts[0].shape}): mean error {summary}; wrote {out}")
 
 
