@@ -106,10 +106,15 @@ def _camera_axes(forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _best_azimuth(path: np.ndarray, elevation: float) -> float:
-    """The azimuth near the scene's default view (150 deg: in front of the arm, to its side)
-    from which the target's path looks widest: a circle seen edge-on hides any lag."""
+    """The azimuth from which the target's path looks widest (a circle seen edge-on hides any
+    lag), among views from in front of the arm and to one side: the camera's direction is
+    100-150 deg from the arm's reach (base to path), so the hand does not sit on the target."""
+    reach = math.degrees(math.atan2(path[:, 1].mean(), path[:, 0].mean()))
     best, best_score = 150.0, -1.0
-    for az in np.arange(100.0, 201.0, 10.0):
+    for az in np.arange(0.0, 360.0, 5.0):
+        off = abs((az - reach + 180.0) % 360.0 - 180.0)
+        if not 100.0 <= off <= 150.0:
+            continue
         right, up = _camera_axes(_forward(az, elevation))
         flat = (path - path.mean(0)) @ np.stack([right, up], 1)
         score = np.linalg.eigvalsh(np.cov(flat.T))[0]  # the narrower spread of the two
@@ -200,8 +205,8 @@ def draw_markers(scene: mujoco.MjvScene, rollout, k: int, trail_rows: int) -> No
     base = rollout.target_pos[max(k - 1, 0)]
     aim = np.asarray(base) + rollout.lead[k]
     if np.linalg.norm(rollout.lead[k]) > 0.005:  # an arrow shorter than its head is noise
-        _segment(scene, mujoco.mjtGeom.mjGEOM_ARROW, base, aim, 0.006, LEAD)
-    _add(scene, mujoco.mjtGeom.mjGEOM_SPHERE, LEAD, size=(0.012, 0, 0), pos=aim)
+        _segment(scene, mujoco.mjtGeom.mjGEOM_ARROW, base, aim, 0.01, LEAD)
+    _add(scene, mujoco.mjtGeom.mjGEOM_SPHERE, LEAD, size=(0.014, 0, 0), pos=aim)
 
 
 # --- 2-D overlay ----------------------------------------------------------------------------
