@@ -9,12 +9,12 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import ROOT, run_script
 
 import controller_cli
 import controllers
 import env as env_mod
 import video
-from conftest import ROOT, run_script
 from errors import UserError
 from rollout import record
 
@@ -153,10 +153,10 @@ def test_ffmpeg_failure_reaches_python(episode, tmp_path, monkeypatch):
     before = _old_file(out)
     real = video.FfmpegWriter.__init__
 
-    def bad_codec(self, path, *a, **kw):
+    def dies(self, path, *a, **kw):
         real(self, path, *a, **kw)
         self._proc.kill()  # as if the disk filled: ffmpeg dies, the pipe breaks
-    monkeypatch.setattr(video.FfmpegWriter, "__init__", bad_codec)
+    monkeypatch.setattr(video.FfmpegWriter, "__init__", dies)
     with pytest.raises(UserError, match="ffmpeg failed .*; the old file is unchanged"):
         video.write(out, [r], model, progress=False)
     assert out.read_bytes() == before
