@@ -3,6 +3,7 @@ range to write rollout files. Both scripts run every controller through the same
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from dataclasses import dataclass
@@ -74,44 +75,34 @@ def _validate(args: Args):
     return seeds, overrides
 
 
-def _build(args: Args, overrides: dict, names: tuple[str, ...] | None = None):
-    """-> (env, act_fn, meta, model) for the chosen controller; a policy's env comes from its
-    sidecar. With ``names`` (a comparison): act_fn and meta are dicts by controller, on one
-    env (the policy's if one of them is the policy, so both sides run the same task)."""
+def _build(args: Args, overrides: dict):
+    """-> (env, act_fn, meta) for the chosen controller; a policy's env comes from its sidecar."""
+    import controllers
     import env as env_mod
     from models import load_policy, newest_archived
 
     steps = int(round(args.duration * 100))
-    wanted = names or (args.controller,)
+    meta = {"controller": args.controller, "model": None}
     env_kwargs: dict = {}
-    model = path = None
-    if "policy" in wanted:
+    act = controllers.classical
+    model = None
+    if args.controller == "policy" or args.compare:
         path = args.model or newest_archived()
         if path is None:
             raise UserError("no --model given and archive/ has no model; train one with "
                             "`uv run train.py --archive NAME` or use --controller classical")
         model, env_kwargs, _ = load_policy(path)
-    acts, metas = {}, {}
-    for name in wanted:
-        acts[name], metas[name] = _controller(name, args, model, path)
+        meta["model"] = str(path)
+    if args.controller == "policy":
+        act = controllers.make_policy(model, deterministic=not args.stochastic)
+    elif args.controller == "analytic":
+        tau = controllers.DEFAULT_TAU if args.tau is None else args.tau
+        act = controllers.make_analytic(tau)
+        meta["tau"] = tau
     kwargs = {**env_kwargs, **overrides, "episode_steps": steps}
-    env = env_mod.PandaLeadEnv(**kwargs)  # videos render the rollouts (video.py), not the env
-    if names:
-        return env, acts, metas, model
-    return env, acts[args.controller], metas[args.controller], model
-
-
-def _controller(name: str, args: Args, model, path):
-    """-> (act_fn, meta) of one controller; meta says exactly what drove the arm."""
-    import controllers
-
-    meta = {"controller": name, "model": str(path) if name == "policy" else None}
-    if name == "policy":
-        return controllers.make_policy(model, deterministic=not args.stochastic), meta
-    if name == "analytic":
-        meta["tau"] = controllers.DEFAULT_TAU if args.tau is None else args.tau
-        return controllers.make_analytic(meta["tau"]), meta
-    return controllers.classical, meta
+    render = "rgb_array" if args.video else None
+    env = env_mod.PandaLeadEnv(**kwargs, render_mode=render)
+    return env, act, meta, model
 
 
 def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
@@ -142,15 +133,20 @@ def write_video(args: Args, seed: int, overrides: dict) -> None:
     from rollout import record
 
     names = compare_pair(args) or (args.controller,)
-    env, acts, metas, _ = _build(args, overrides, names)
-    rollouts = [record(env, acts[n], seed, args.shape, metas[n]) for n in names]
+    # Each controller is built as if run alone, so its meta (and the label drawn from it) says
+    # what really drove it; every side then runs on one env, the policy's (from its sidecar)
+    # when one side is the policy, so both track the same task and the model loads once.
+    built = {n: _build(dataclasses.replace(args, controller=n, compare=None), overrides)
+             for n in dict.fromkeys(names)}
+    env = built["policy"][0] if "policy" in built else built[names[0]][0]
+    rollouts = [record(env, built[n][1], seed, args.shape, built[n][2]) for n in names]
+    for other_env, *_ in built.values():
+        other_env.close()
     out = Path(args.video)
     try:
         video.write(out, rollouts, env.core.model)
     except errors.UserError as exc:  # one line, exit 2 (the entry catches this module's type)
         raise UserError(str(exc)) from None
-    finally:
-        env.close()
     pairs = zip(names, rollouts, strict=True)
     summary = ", ".join(f"{n} {100 * r.error.mean():.2f} cm" for n, r in pairs)
     print(f"seed {seed} ({rollouts[0].shape}): mean error {summary}; wrote {out}")
