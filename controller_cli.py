@@ -17,7 +17,6 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
-from atomicio import atomic_write
 from env import EnvConfig, config_docs
 from errors import UserError, did_you_mean, exit_on_user_error
 
@@ -55,8 +54,9 @@ class Args:
     """Episode length in seconds."""
     video: Path | None = None
     """Render the single episode offscreen to this MP4 instead of opening the viewer."""
-    compare: bool = False
-    """With --video: classical (left) and the policy (right) side by side on the same seed."""
+    compare: tuple[Literal["classical", "analytic", "policy"], ...] | None = None
+    """With --video: two controllers side by side on the same seed, e.g. --compare classical
+    analytic. --compare alone: classical beside --controller (the policy if that is classical)."""
     stochastic: bool = False
     """Sample policy actions instead of taking the mean."""
     env: EnvOverrides = field(default_factory=EnvOverrides)  # type: ignore[valid-type]
@@ -91,8 +91,10 @@ def _validate(args: Args):
         raise UserError(f"--duration must be a positive number, got {args.duration}")
     if args.tau is not None and not (math.isfinite(args.tau) and args.tau >= 0):
         raise UserError(f"--tau must be a finite number >= 0, got {args.tau}")
-    if args.compare and args.video is None:
+    if args.compare is not None and args.video is None:
         raise UserError("--compare renders a video: add --video out.mp4")
+    if args.compare and len(args.compare) != 2:
+        raise UserError(f"--compare takes two controllers (or none), got {' '.join(args.compare)}")
     overrides = {k: v for k, v in dataclasses.asdict(args.env).items() if v is not None}
     EnvConfig.from_dict(overrides)  # a bad value is one clear line before any work
     return seeds, overrides
@@ -194,47 +196,35 @@ def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
     print(f"wrote {len(seeds)} rollouts to {folder}/")
 
 
-def _label(frame: np.ndarray, text: str) -> np.ndarray:
-    from PIL import Image, ImageDraw
-
-    img = Image.fromarray(frame)
-    ImageDraw.Draw(img).text((12, 10), text, fill=(255, 255, 255))
-    return np.asarray(img)
+def compare_pair(args: Args) -> tuple[str, str] | None:
+    """The two controllers of --compare, left then right: as named, or classical beside
+    --controller (the policy when --controller is classical, as --compare always did)."""
+    if args.compare is None:
+        return None
+    if args.compare:
+        return tuple(args.compare)
+    return "classical", args.controller if args.controller != "classical" else "policy"
 
 
 def write_video(args: Args, seed: int, overrides: dict) -> None:
-    import imageio.v2 as imageio
-
-    import controllers
+    import video
     from rollout import record
 
-    env, act, meta, model = _build(args, overrides)
-    every = 2  # 100 Hz control -> 50 fps video
-
-    def episode(act_fn, label):
-        frames = []
-
-        def grab(e):
-            if e.core.step_count[0] % every == 0:
-                frames.append(_label(e.render(), label))
-
-        r = record(env, act_fn, seed, args.shape, on_step=grab)
-        return frames, r
-
-    if args.compare:
-        left, ra = episode(controllers.classical, "Classical IK+PD")
-        right, rb = episode(act, f"RL lead ({Path(meta['model']).stem})")
-        frames = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=False)]
-        summary = (f"classical {100 * ra.error.mean():.2f} cm, "
-                   f"policy {100 * rb.error.mean():.2f} cm")
-    else:
-        frames, r = episode(act, f"{args.controller} seed {seed}")
-        summary = f"{args.controller} {100 * r.error.mean():.2f} cm"
+    names = compare_pair(args) or (args.controller,)
+    # Each controller is built as if run alone, so its meta (and the label drawn from it) says
+    # what really drove it; every side then runs on one env, the policy's (from its sidecar)
+    # when one side is the policy, so both track the same task and the model loads once.
+    built = {n: _build(dataclasses.replace(args, controller=n, compare=None), overrides)
+             for n in dict.fromkeys(names)}
+    env = built["policy"][0] if "policy" in built else built[names[0]][0]
+    rollouts = [record(env, built[n][1], seed, args.shape, built[n][2]) for n in names]
+    for other_env, *_ in built.values():
+        other_env.close()
     out = Path(args.video)
-    with atomic_write(out, ".tmp.mp4") as tmp:
-        imageio.mimwrite(tmp, frames, fps=100 // every, macro_block_size=1)
-    env.close()
-    print(f"seed {seed} ({env.traj.shape}): mean error {summary}; wrote {out}")
+    video.write(out, rollouts, env.core.model)  # a failed write is a UserError, old file kept
+    pairs = zip(names, rollouts, strict=True)
+    summary = ", ".join(f"{n} {100 * r.error.mean():.2f} cm" for n, r in pairs)
+    print(f"seed {seed} ({rollouts[0].shape}): mean error {summary}; wrote {out}")
 
 
 def watch(args: Args, seed: int, overrides: dict) -> None:
