@@ -65,7 +65,7 @@ def _numpy_actor(model):
     """(weight^T, bias, activation) per layer of an SB3 MlpPolicy's actor, in float64."""
     import torch
 
-    policy = model.policy
+    policy = getattr(model, "policy", model)  # a PPO model or its policy alone
     activations = {torch.nn.Tanh: np.tanh, torch.nn.ReLU: lambda x: np.maximum(x, 0.0)}
     fn = activations.get(policy.activation_fn)
     if fn is None or getattr(policy, "squash_output", False):

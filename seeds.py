@@ -2,17 +2,19 @@
 
 | set    | seeds                       | shape                  | used by                              |
 |--------|-----------------------------|------------------------|--------------------------------------|
-| test   | 0..99                       | drawn from the seed    | README results (ikpd.py, eval.py)    |
+| test   | 0..999 (0..99: quick subset)| drawn from the seed    | results (ikpd.py, eval.py), archive  |
 | eval   | 900000..900014              | 5 per shape, forced    | evaluation during training, sweeps   |
 | tune   | 800000..800049              | drawn from the seed    | tuning the analytic lead's tau       |
-| train  | 10^7 .. 2^31-1, env's rng   | drawn (or restricted)  | training episodes                    |
+| train  | 10^7 .. 2^31-1, env i's own | drawn (or restricted)  | training: env i of training seed s   |
+|        | stream SeedSequence(s)[i]   |                        | draws from its own spawned stream    |
 """
 
 from __future__ import annotations
 
 from errors import UserError
 
-TEST_SEEDS = tuple(range(0, 100))
+TEST_SEEDS = tuple(range(0, 1000))
+QUICK_TEST_SEEDS = TEST_SEEDS[:100]  # the quick subset: archive sidecars and cards report it
 EVAL_SHAPES = ("circle", "fig8", "fly")
 EVAL_SEEDS_PER_SHAPE = 5
 # (seed, forced shape): 900000-900004 circles, 900005-900009 figure-eights, 900010-900014 fly.

@@ -575,7 +575,7 @@ def archive_model(run_dir: Path, name: str, config=None, force: bool = False) ->
     archived model unless ``force``. (``config`` is unused: the source's sidecar says it.)"""
     from controllers import make_policy
     from models import file_sha256, load_policy, write_json_atomic
-    from seeds import TEST_SEEDS
+    from seeds import QUICK_TEST_SEEDS as TEST_SEEDS
 
     _check_archive_free(name, force)
     src = run_dir / "best_model.zip"
@@ -628,7 +628,7 @@ print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {see
 
 def write_card(zip_path: Path, side: dict) -> Path:
     """archive/NAME.md: what the model is, its config, its test results, how to load it."""
-    from seeds import TEST_SEEDS
+    from seeds import QUICK_TEST_SEEDS as TEST_SEEDS
 
     name = zip_path.stem
     train = side.get("train_config", {})
