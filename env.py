@@ -99,6 +99,12 @@ class EnvConfig:
     """Gaussian noise std per observation feature, in the feature's unit (m, m/s, m/s^2, rad)."""
     ik_iters: int = 1
     """DLS iterations per control step."""
+    obs_delay: int = 0
+    """Observation latency in control steps (10 ms each): the policy sees the state of k steps ago."""
+    action_delay: int = 0
+    """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
+    random_delay: bool = False
+    """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
 
     def __post_init__(self):
         # Normalise (tuples in canonical order, plain floats) so equal settings compare equal.
@@ -133,6 +139,9 @@ class EnvConfig:
             raise UserError(f"episode_steps must be >= 1, got {self.episode_steps}")
         if self.ik_iters < 1:
             raise UserError(f"ik_iters must be >= 1, got {self.ik_iters}")
+        if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
+            raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
+                            f"{self.obs_delay}, {self.action_delay}")
         if self.tracking_scale <= 0:
             raise UserError(f"tracking_scale must be > 0, got {self.tracking_scale}")
 
@@ -217,6 +226,13 @@ class LeadTask:
         self._reachable = np.ones((n, c.episode_steps + 1), dtype=bool)
         self._raw = np.zeros((n, self.obs_dim))
         self._all = np.arange(n)
+        # Latency: the last obs_delay+1 observations and action_delay+1 actions per slot, newest
+        # first; each slot reads the entry of its own delay (fixed, or drawn per episode).
+        self._delayed = bool(c.obs_delay or c.action_delay)
+        self._obs_hist = np.zeros((n, c.obs_delay + 1, self.obs_dim), dtype=np.float32)
+        self._act_hist = np.zeros((n, c.action_delay + 1, 3))
+        self.obs_delay = np.full(n, c.obs_delay)
+        self.action_delay = np.full(n, c.action_delay)
 
     def reset(self, ids=None, traj_seeds=None, shapes=None) -> np.ndarray:
         """Start new episodes in slots ``ids`` (default all); returns the observation of all.
@@ -241,7 +257,15 @@ class LeadTask:
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
-        return self.observe(ids)
+        if not self._delayed:
+            return self.observe(ids)
+        if self.config.random_delay:
+            for i in ids:
+                self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
+                self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
+        self._act_hist[ids] = 0.0  # before the episode the lead was zero (classical)
+        self._obs_hist[ids] = self.observe(ids)[ids, None, :]  # before it, the arm stood still
+        return self._obs_hist[self._all, self.obs_delay]
 
     def observe(self, ids=None) -> np.ndarray:
         """The (scaled, float32) observation of every slot; noise is drawn for slots ``ids``
@@ -270,7 +294,12 @@ class LeadTask:
                              f"{self.traj_seeds[bad[0]]})")
         np.clip(action, -1.0, 1.0, out=action)
         core = self.core
-        self.lead = action * self.config.max_lead
+        applied = action
+        if self._delayed:
+            self._act_hist[:, 1:] = self._act_hist[:, :-1]
+            self._act_hist[:, 0] = action
+            applied = self._act_hist[self._all, self.action_delay]
+        self.lead = applied * self.config.max_lead
         core.step(self.lead)
         ee = core.tip_pos
         np.subtract(ee, self._prev_ee, out=self.ee_vel)
@@ -296,6 +325,10 @@ class LeadTask:
         reward = sum(terms.values())
         self.prev_action = action
         obs = self.observe()
+        if self._delayed:
+            self._obs_hist[:, 1:] = self._obs_hist[:, :-1]
+            self._obs_hist[:, 0] = obs
+            obs = self._obs_hist[self._all, self.obs_delay]
         obs[unstable] = 0.0  # never hand NaNs to the learner
         k = np.minimum(core.step_count, self.config.episode_steps)
         info = {"distance": dist, "reward_terms": terms, "self_collision": core.self_collision,

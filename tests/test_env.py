@@ -203,3 +203,51 @@ def test_registered_time_limit_and_vector_entry_point():
     obs, info = v.reset(seed=0)
     assert obs.shape == (3, 15) and obs.dtype == np.float32 and len(set(info["traj_seed"])) == 3
     v.close()
+
+
+@pytest.mark.parametrize("k", [1, 3])
+def test_observation_delay_shows_the_state_of_k_steps_ago(k):
+    rng = np.random.default_rng(k)
+    actions = rng.uniform(-1, 1, (40, 3)).astype(np.float32)
+    now = env_mod.PandaLeadEnv(episode_steps=40)
+    late = env_mod.PandaLeadEnv(episode_steps=40, obs_delay=k)
+    seen_now = [now.reset(seed=1, options={"traj_seed": 5})[0]]
+    seen_late = [late.reset(seed=1, options={"traj_seed": 5})[0]]
+    for a in actions:
+        seen_now.append(now.step(a)[0])
+        seen_late.append(late.step(a)[0])
+        # Only the observation is late: the arm itself moves exactly as without delay.
+        assert np.array_equal(now.core.qpos, late.core.qpos)
+    for t in range(len(seen_late)):
+        np.testing.assert_array_equal(seen_late[t], seen_now[max(t - k, 0)])
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_action_delay_applies_the_action_of_k_steps_ago(k):
+    rng = np.random.default_rng(10 + k)
+    actions = rng.uniform(-1, 1, (40, 3)).astype(np.float32)
+    shifted = np.concatenate([np.zeros((k, 3), np.float32), actions[:-k]])
+    late = env_mod.PandaLeadEnv(episode_steps=40, action_delay=k)
+    ref = env_mod.PandaLeadEnv(episode_steps=40)
+    late.reset(seed=0, options={"traj_seed": 9})
+    ref.reset(seed=0, options={"traj_seed": 9})
+    for a, b in zip(actions, shifted, strict=True):
+        _, _, _, _, info = late.step(a)
+        _, _, _, _, ref_info = ref.step(b)
+        assert np.array_equal(late.core.qpos, ref.core.qpos)
+        np.testing.assert_array_equal(info["lead"], ref_info["lead"])
+
+
+def test_random_delays_are_drawn_per_episode_and_reproducible():
+    from controllers import make_analytic
+    from rollout import record, record_many
+
+    config = env_mod.EnvConfig(episode_steps=30, obs_delay=3, action_delay=3, random_delay=True)
+    batch = record_many(config, make_analytic(), range(12))
+    single = env_mod.PandaLeadEnv(config)
+    for r in batch[:4]:
+        assert np.array_equal(r.ee_pos, record(single, make_analytic(), r.seed).ee_pos)
+    task = env_mod.LeadTask(config, 64, nthread=1)
+    task.rngs = [np.random.default_rng(s) for s in range(64)]
+    task.reset()
+    assert set(task.obs_delay) == {0, 1, 2, 3} and set(task.action_delay) == {0, 1, 2, 3}
