@@ -32,6 +32,8 @@ CANDIDATES: dict[str, list[str]] = {
                        "--batch-size", "1024", "--n-epochs", "10"],
     "b16x512_bs2048_e5": ["--n-envs", "16", "--vec-env", "batched", "--n-steps", "512",
                           "--batch-size", "2048", "--n-epochs", "5"],
+    "b64x64_bs1024_lr1e-3": ["--n-envs", "64", "--vec-env", "batched", "--n-steps", "64",
+                             "--batch-size", "1024", "--n-epochs", "10", "--learning-rate", "1e-3"],
     "b32x128_bs1024_lr1e-3": ["--n-envs", "32", "--vec-env", "batched", "--n-steps", "128",
                               "--batch-size", "1024", "--n-epochs", "10",
                               "--learning-rate", "1e-3"],
@@ -73,7 +75,7 @@ def first_below(progress: Path, threshold: float) -> tuple[int, float] | None:
 
 
 def main() -> None:
-    args = tyro.cli(Args)
+    args = tyro.cli(Args, description=__doc__)
     base = classical_eval_error()
     threshold = base - args.margin_cm
     print(f"classical evaluation error {base:.2f} cm -> threshold {threshold:.2f} cm", flush=True)
