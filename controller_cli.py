@@ -66,8 +66,6 @@ class Args:
     force: bool = False
     """Write into a --prefix that holds another controller's or model's rollouts (those files
     are deleted first, so the set never mixes two)."""
-    tune_tau: bool = False
-    """Grid-search the analytic lead's tau on the tuning seeds (never the test seeds)."""
 
 
 PREFIX_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
@@ -250,36 +248,17 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
             time.sleep(max(0.0, env.dt - (time.perf_counter() - start)))
 
 
-def tune_tau(args: Args, overrides: dict) -> None:
-    import controllers
-    import env as env_mod
-    from rollout import record_many
-    from seeds import TUNE_SEEDS
-
-    config = env_mod.EnvConfig.from_dict({**overrides, "episode_steps": int(round(args.duration * 100))})
-    print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")
-    best = None
-    for tau in np.round(np.arange(0.0, 0.1001, 0.01), 3):
-        act = controllers.make_analytic(float(tau))
-        err = np.mean([r.error.mean() for r in record_many(config, act, TUNE_SEEDS)]) * 100
-        print(f"tau {tau:.2f} s: mean error {err:.2f} cm")
-        if best is None or err < best[1]:
-            best = (float(tau), err)
-    print(f"best tau {best[0]:.2f} s ({best[1]:.2f} cm)")
-
-
-def run_controller_cli(default_controller: str, default_prefix: str, argv, prog: str) -> None:
+def run_controller_cli(default_controller: str, default_prefix: str, argv, prog: str,
+                       description: str | None = None) -> None:
     defaults = Args(controller=default_controller, prefix=default_prefix)
-    args = tyro.cli(Args, args=argv, default=defaults, prog=prog)
+    args = tyro.cli(Args, args=argv, default=defaults, prog=prog, description=description)
     _run(args)
 
 
 @exit_on_user_error  # UserError, ModelError, bad seeds/shapes: one line, exit 2; bugs keep traces
 def _run(args: Args) -> None:
     seeds, overrides = _validate(args)
-    if args.tune_tau:
-        tune_tau(args, overrides)
-    elif seeds is not None:
+    if seeds is not None:
         write_rollouts(args, seeds, overrides)
     else:
         seed = args.seed if args.seed is not None else int(np.random.default_rng().integers(

@@ -13,7 +13,7 @@ from core import analytic_lead
 from env import OBS_SCALE
 
 CONTROLLERS = ("classical", "analytic", "policy")
-# Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run ikpd.py --tune-tau`; see README.
+# Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run studies/tau.py`.
 DEFAULT_TAU = 0.04
 
 

@@ -15,4 +15,4 @@ from controller_cli import run_controller_cli
 
 if __name__ == "__main__":
     run_controller_cli(default_controller="classical", default_prefix="ikpd", argv=sys.argv[1:],
-                       prog=os.path.basename(__file__))
+                       prog=os.path.basename(__file__), description=__doc__)

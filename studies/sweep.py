@@ -385,7 +385,7 @@ def main() -> None:
     elif args.worker_id >= 0:
         work(args)
     else:
-        from presets import get_preset
+        from training import get_preset
 
         try:
             for p in args.presets:

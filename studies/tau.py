@@ -1,0 +1,49 @@
+"""Tune the analytic lead's look-ahead tau on the tuning seeds (never the test seeds).
+
+    uv run studies/tau.py                 # tau 0.00-0.10 s in 0.01 s steps, 5 s episodes
+
+Every tau plays all tuning seeds as one batch; the best mean error wins. The result is
+controllers.DEFAULT_TAU (0.04 s), which the analytic baseline uses everywhere.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+# Studies import the pipeline, which lives at the repo root (nothing imports a study).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from dataclasses import dataclass
+
+import numpy as np
+import tyro
+
+
+@dataclass
+class Args:
+    duration: float = 5.0
+    """Episode length in seconds."""
+    taus: tuple[float, ...] = tuple(np.round(np.arange(0.0, 0.1001, 0.01), 3).tolist())
+    """Candidate look-aheads (s)."""
+
+
+def main(args: Args) -> None:
+    import controllers
+    from env import EnvConfig
+    from rollout import record_many
+    from seeds import TUNE_SEEDS
+
+    config = EnvConfig(episode_steps=int(round(args.duration * 100)))
+    print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")
+    errors = {}
+    for tau in args.taus:
+        rollouts = record_many(config, controllers.make_analytic(float(tau)), TUNE_SEEDS)
+        errors[tau] = 100 * float(np.mean([r.error.mean() for r in rollouts]))
+        print(f"tau {tau:.2f} s: mean error {errors[tau]:.2f} cm", flush=True)
+    best = min(errors, key=errors.get)
+    print(f"best tau {best:.2f} s ({errors[best]:.2f} cm); in use: {controllers.DEFAULT_TAU} s")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args, description=__doc__))
