@@ -105,6 +105,9 @@ class EnvConfig:
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    max_peak_speed: float | None = None
+    """Redraw training trajectories until their peak speed is at most this (m/s); None: any.
+    Named trajectory seeds (test, evaluation) are never filtered."""
 
     def __post_init__(self):
         # Normalise (tuples in canonical order, plain floats) so equal settings compare equal.
@@ -142,6 +145,11 @@ class EnvConfig:
         if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
             raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
                             f"{self.obs_delay}, {self.action_delay}")
+        if self.max_peak_speed is not None:
+            cap = self.max_peak_speed
+            if isinstance(cap, bool) or not isinstance(cap, int | float) or not cap > 0.25:
+                raise UserError(f"max_peak_speed must be a speed above 0.25 m/s, got {cap!r}")
+            set_("max_peak_speed", float(cap))
         if self.tracking_scale <= 0:
             raise UserError(f"tracking_scale must be > 0, got {self.tracking_scale}")
 
@@ -233,6 +241,8 @@ class LeadTask:
         self._act_hist = np.zeros((n, c.action_delay + 1, 3))
         self.obs_delay = np.full(n, c.obs_delay)
         self.action_delay = np.full(n, c.action_delay)
+        # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
+        self.speed_cap = c.max_peak_speed
 
     def reset(self, ids=None, traj_seeds=None, shapes=None) -> np.ndarray:
         """Start new episodes in slots ``ids`` (default all); returns the observation of all.
@@ -242,12 +252,10 @@ class LeadTask:
         for j, i in enumerate(ids):
             shape = None if shapes is None else shapes[j]
             if traj_seeds is None or traj_seeds[j] is None:
-                seed = int(self.rngs[i].integers(TRAIN_SEED_LOW, TRAIN_SEED_HIGH))
-                if shape is None and self.config.shapes is not None:
-                    shape = self.config.shapes[int(self.rngs[i].integers(len(self.config.shapes)))]
+                traj = self._draw(i, shape)
             else:
-                seed = int(traj_seeds[j])
-            traj = trajectory.sample(seed, shape)
+                traj = trajectory.sample(int(traj_seeds[j]), shape)
+            seed = traj.seed
             self.trajs[i], self.traj_seeds[i], self.shapes[i] = traj, seed, traj.shape
             trajs.append(traj)
         core = self.core
@@ -266,6 +274,17 @@ class LeadTask:
         self._act_hist[ids] = 0.0  # before the episode the lead was zero (classical)
         self._obs_hist[ids] = self.observe(ids)[ids, None, :]  # before it, the arm stood still
         return self._obs_hist[self._all, self.obs_delay]
+
+    def _draw(self, i: int, shape: str | None):
+        """A training trajectory from slot i's own stream (under the speed cap, if any)."""
+        while True:
+            seed = int(self.rngs[i].integers(TRAIN_SEED_LOW, TRAIN_SEED_HIGH))
+            pick = shape
+            if pick is None and self.config.shapes is not None:
+                pick = self.config.shapes[int(self.rngs[i].integers(len(self.config.shapes)))]
+            traj = trajectory.sample(seed, pick)
+            if self.speed_cap is None or traj.peak_speed <= self.speed_cap:
+                return traj
 
     def observe(self, ids=None) -> np.ndarray:
         """The (scaled, float32) observation of every slot; noise is drawn for slots ``ids``

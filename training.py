@@ -85,6 +85,11 @@ class TrainConfig:
     """Save a checkpoint every this many total steps."""
     stop_below_cm: float | None = None
     """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
+    curriculum_steps: int = 0
+    """Speed curriculum: over this many steps the training targets' peak-speed cap rises
+    linearly from --curriculum-start-speed to none (0: no curriculum; batched vec env only)."""
+    curriculum_start_speed: float = 0.8
+    """Peak-speed cap (m/s) of the training targets at step 0 of a curriculum."""
     preset: str | None = None
     """Start from a preset (see the list above); every flag given overrides it."""
 
@@ -122,6 +127,14 @@ class TrainConfig:
         if self.stop_below_cm is not None and not (math.isfinite(self.stop_below_cm)
                                                    and self.stop_below_cm > 0):
             raise UserError(f"--stop-below-cm must be > 0, got {self.stop_below_cm!r}")
+        if isinstance(self.curriculum_steps, bool) or not isinstance(self.curriculum_steps, int) \
+                or self.curriculum_steps < 0:
+            raise UserError(f"--curriculum-steps must be an integer >= 0, got {self.curriculum_steps!r}")
+        if self.curriculum_steps and self.vec_env != "batched":
+            raise UserError("--curriculum-steps needs --vec-env batched (it sets the envs' cap)")
+        if not (math.isfinite(self.curriculum_start_speed) and self.curriculum_start_speed > 0.25):
+            raise UserError("--curriculum-start-speed must be above 0.25 m/s, got "
+                            f"{self.curriculum_start_speed!r}")
         if self.preset is not None and self.preset not in PRESET_DOCS:
             raise UserError(f"unknown preset {self.preset!r}" + did_you_mean(self.preset, PRESET_DOCS))
 
@@ -477,6 +490,33 @@ def _callbacks(run_dir: Path, config: TrainConfig, on_eval=None, total: int = 0,
     return TrackingEval(), ckpt, Progress()
 
 
+def speed_cap(step: int, start: float, steps: int) -> float | None:
+    """The curriculum's peak-speed cap at a training step: linear from start to the fastest
+    trajectory (trajectory.MAX_SPEED), then none."""
+    import trajectory
+
+    if step >= steps:
+        return None
+    return start + (trajectory.MAX_SPEED - start) * step / steps
+
+
+def SpeedCurriculum(vec, start: float, steps: int):  # noqa: N802 (a callback factory)
+    """An SB3 callback that sets the batched envs' speed cap before each rollout."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    task = vec.venv.task  # VecMonitor -> LeadVecEnv -> LeadTask
+
+    class _Curriculum(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            task.speed_cap = speed_cap(self.num_timesteps, start, steps)
+            self.logger.record("train/speed_cap", task.speed_cap or 0.0)
+
+        def _on_step(self) -> bool:
+            return True
+
+    return _Curriculum()
+
+
 class _Signals:
     """SIGINT and SIGTERM set a flag that makes learn() stop at the next step (the model is
     then saved); a second signal raises KeyboardInterrupt at once. Only in the main thread."""
@@ -751,12 +791,16 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
     signals = _Signals()
     tracker, checkpoint, progress = _callbacks(run_dir, config, on_eval, real,
                                                args.progress, signals)
+    callbacks = [tracker, checkpoint, progress]
+    if config.curriculum_steps:
+        callbacks.append(SpeedCurriculum(vec, config.curriculum_start_speed,
+                                         config.curriculum_steps))
     print("training started", flush=True)
     interrupted = None
     with signals:
         try:
             if remaining > 0:
-                model.learn(remaining, callback=[tracker, checkpoint, progress],
+                model.learn(remaining, callback=callbacks,
                             reset_num_timesteps=ckpt is None)
         except KeyboardInterrupt:
             interrupted = signals.received or signal.SIGINT

@@ -251,3 +251,28 @@ def test_random_delays_are_drawn_per_episode_and_reproducible():
     task.rngs = [np.random.default_rng(s) for s in range(64)]
     task.reset()
     assert set(task.obs_delay) == {0, 1, 2, 3} and set(task.action_delay) == {0, 1, 2, 3}
+
+
+def test_speed_cap_filters_training_draws_only():
+    config = env_mod.EnvConfig(max_peak_speed=1.0)
+    task = env_mod.LeadTask(config, 32, nthread=1)
+    task.rngs = [np.random.default_rng(s) for s in range(32)]
+    task.reset()
+    assert max(t.peak_speed for t in task.trajs) <= 1.0
+    fast = next(s for s in range(100) if trajectory.sample(s).peak_speed > 1.5)
+    task.reset([0], [fast])  # a named (test) seed is played as it is
+    assert task.trajs[0].peak_speed > 1.5
+    with pytest.raises(UserError):
+        env_mod.EnvConfig(max_peak_speed=0.1)
+
+
+def test_speed_curriculum_raises_the_cap_linearly_then_lifts_it():
+    import training
+
+    assert training.speed_cap(0, 0.8, 1000) == pytest.approx(0.8)
+    assert training.speed_cap(500, 0.8, 1000) == pytest.approx(0.8 + (trajectory.MAX_SPEED - 0.8) / 2)
+    assert training.speed_cap(1000, 0.8, 1000) is None
+    args = training.parse_args(["--curriculum-steps", "300000", "--curriculum-start-speed", "0.6"])
+    assert args.curriculum_steps == 300000 and args.curriculum_start_speed == 0.6
+    with pytest.raises(UserError):
+        training.parse_args(["--curriculum-steps", "1000", "--vec-env", "subproc"])
