@@ -271,6 +271,9 @@ class ArmBatch:
 
     def step(self, lead: np.ndarray | None = None) -> None:
         """One control step of every arm: IK on (target + lead), then the PD for the substeps."""
+        if self.target_pos is None:
+            raise RuntimeError("ArmBatch.step before any target path: call "
+                               "reset(trajs=[...], n_steps=N) first")
         target = self.target()[0]
         self.q_goal = self.ik(target if lead is None else target + lead)
         self._ctrl[:, :N_JOINTS] = self.q_goal

@@ -13,7 +13,6 @@ from __future__ import annotations
 import difflib
 import os
 import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -263,15 +262,10 @@ def plot(traj: Trajectory, duration: float, out: Path | None, show: bool) -> Non
                  f"(reach {REACH_RADIUS} m), out of reach {bad.mean():.0%} of {duration:g} s")
     ax.legend(loc="upper left", fontsize=8)
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".png", dir=out.parent)
-        os.close(fd)
-        try:
+        from atomicio import atomic_write  # the repo's one writer: atomic, ordinary permissions
+
+        with atomic_write(out, ".tmp.png") as tmp:
             fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
-            os.replace(tmp, out)  # readers never see a half-written PNG
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
         print(f"wrote {out}")
     if show:
         plt.show()

@@ -164,3 +164,8 @@ def test_home_pose_and_rates_come_from_the_mjcf():
     m = load_model()
     np.testing.assert_array_equal(HOME_QPOS, m.key("home").qpos[:N_JOINTS])
     assert ArmBatch(1, nthread=1).dt == pytest.approx(m.opt.timestep * 5) == pytest.approx(0.01)
+
+
+def test_stepping_before_a_target_path_is_a_clear_error():
+    with pytest.raises(RuntimeError, match="reset\\(trajs="):
+        ArmBatch(1, nthread=1).step()

@@ -185,3 +185,31 @@ def test_cli_text_and_errors():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     r = run_cli("--show", env=env)
     assert r.returncode == 2 and "no display: use --out FILE.png" in r.stderr
+
+
+def test_plot_png_has_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from conftest import run_script
+
+    out = tmp_path / "t.png"
+    res = run_script("trajectory.py", "--seed", "3", "--out", out, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o666 & ~umask  # not mkstemp's private 0600
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize("script", ["train.py", "eval.py", "ikpd.py", "metrics.py", "trajectory.py",
+                                    "studies/bench.py", "studies/ttq.py", "studies/soak.py",
+                                    "studies/sweep.py", "studies/tau.py", "studies/robustness.py"])
+def test_every_script_describes_itself_in_help(script):
+    from conftest import run_script
+
+    res = run_script(script, "--help")
+    assert res.returncode == 0, res.stderr
+    usage_end = res.stdout.index("\n\n")
+    description = res.stdout[usage_end:].strip().split("\n")[0]
+    assert len(description) > 20 and not description.startswith("╭"), res.stdout[:300]
