@@ -18,11 +18,13 @@ DEFAULT_TAU = 0.04
 
 
 def classical(obs, task) -> np.ndarray:
-    return np.zeros((len(obs), 3), dtype=np.float32)
+    return np.zeros((len(obs), task.action_dim), dtype=np.float32)
 
 
 def make_analytic(tau: float = DEFAULT_TAU):
     def act(obs, task) -> np.ndarray:
+        if task.config.action != "lead":
+            raise ValueError("the analytic lead is a Cartesian lead: it needs action 'lead'")
         max_lead = task.config.max_lead
         if max_lead == 0:
             return classical(obs, task)

@@ -269,13 +269,17 @@ class ArmBatch:
         jac, _ = self._scratch.jac(self._tip_body, self._scratch_tip)
         return jac, self._scratch_tip.copy()
 
-    def step(self, lead: np.ndarray | None = None) -> None:
-        """One control step of every arm: IK on (target + lead), then the PD for the substeps."""
+    def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None
+             ) -> None:
+        """One control step of every arm: IK on (target + lead), plus an optional joint-goal
+        offset (rad, kept inside the joint limits), then the PD for the substeps."""
         if self.target_pos is None:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
         target = self.target()[0]
         self.q_goal = self.ik(target if lead is None else target + lead)
+        if joint_offset is not None:
+            self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
         self._ctrl[:, :N_JOINTS] = self.q_goal
         b = self.batch
         sensors = b.rollout(self.substeps, record=("sensordata",), out=self._contacts)["sensordata"]

@@ -16,6 +16,7 @@ import math
 import textwrap
 from dataclasses import dataclass, field
 from functools import cache
+from typing import Literal
 
 import gymnasium as gym
 import numpy as np
@@ -105,6 +106,11 @@ class EnvConfig:
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    action: Literal["lead", "joint"] = "lead"
+    """lead: the action is a Cartesian lead added to the IK target (3-D); joint: a residual
+    added to the IK's joint goal (7-D, one per joint; it can move the elbow, a lead cannot)."""
+    max_joint_offset: float = 0.2
+    """With action "joint": the joint-goal offset (rad) at action +-1."""
     max_peak_speed: float | None = None
     """Redraw training trajectories until their peak speed is at most this (m/s); None: any.
     Named trajectory seeds (test, evaluation) are never filtered."""
@@ -145,6 +151,13 @@ class EnvConfig:
         if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
             raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
                             f"{self.obs_delay}, {self.action_delay}")
+        if self.action not in ("lead", "joint"):
+            raise UserError(f"action must be 'lead' or 'joint', got {self.action!r}")
+        if self.action == "joint" and "prev_action" in self.obs_features:
+            raise UserError("prev_action is a 3-D lead feature; it cannot be observed with "
+                            "action 'joint'")
+        if self.max_joint_offset < 0:
+            raise UserError(f"max_joint_offset must be >= 0, got {self.max_joint_offset}")
         if self.max_peak_speed is not None:
             cap = self.max_peak_speed
             if isinstance(cap, bool) or not isinstance(cap, int | float) or not cap > 0.25:
@@ -224,7 +237,8 @@ class LeadTask:
         self._noisy = np.flatnonzero(self._noise_std)
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
         self.rngs = [np.random.default_rng() for _ in range(n)]
-        self.prev_action = np.zeros((n, 3))
+        self.action_dim = 3 if c.action == "lead" else N_JOINTS
+        self.prev_action = np.zeros((n, self.action_dim))
         self.lead = np.zeros((n, 3))
         self.ee_vel = np.zeros((n, 3))
         self._prev_ee = np.zeros((n, 3))
@@ -238,7 +252,7 @@ class LeadTask:
         # first; each slot reads the entry of its own delay (fixed, or drawn per episode).
         self._delayed = bool(c.obs_delay or c.action_delay)
         self._obs_hist = np.zeros((n, c.obs_delay + 1, self.obs_dim), dtype=np.float32)
-        self._act_hist = np.zeros((n, c.action_delay + 1, 3))
+        self._act_hist = np.zeros((n, c.action_delay + 1, self.action_dim))
         self.obs_delay = np.full(n, c.obs_delay)
         self.action_delay = np.full(n, c.action_delay)
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
@@ -306,7 +320,7 @@ class LeadTask:
         """One control step of every slot -> (obs, reward, terminated, truncated, info), where
         info holds (N, ...) arrays: distance, reward_terms, self_collision, collision_depth,
         reachable, lead, unstable."""
-        action = np.array(actions, dtype=np.float64).reshape(self.n, 3)
+        action = np.array(actions, dtype=np.float64).reshape(self.n, self.action_dim)
         if not np.isfinite(action).all():
             bad = np.flatnonzero(~np.isfinite(action).all(axis=1))
             raise ValueError(f"action must be finite, got {action[bad[0]]} (trajectory seed "
@@ -318,8 +332,11 @@ class LeadTask:
             self._act_hist[:, 1:] = self._act_hist[:, :-1]
             self._act_hist[:, 0] = action
             applied = self._act_hist[self._all, self.action_delay]
-        self.lead = applied * self.config.max_lead
-        core.step(self.lead)
+        if self.action_dim == 3:
+            self.lead = applied * self.config.max_lead
+            core.step(self.lead)
+        else:
+            core.step(joint_offset=applied * self.config.max_joint_offset)
         ee = core.tip_pos
         np.subtract(ee, self._prev_ee, out=self.ee_vel)
         self.ee_vel /= self.dt
@@ -431,7 +448,7 @@ class PandaLeadEnv(gym.Env):
         self.core = self.task.core
         self.dt = self.task.dt
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
-        self.action_space = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.task.action_dim,), dtype=np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
         self.render_mode, self._width, self._height = render_mode, width, height
         self._renderer = self._viewer = self._render_data = None
@@ -545,7 +562,8 @@ class PandaLeadVecEnv(VectorEnv):
         self.cfg = _as_config(config, settings)
         self.num_envs = int(num_envs)
         self.task = LeadTask(self.cfg, self.num_envs, nthread=num_threads)
-        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (self.task.action_dim,),
+                                              dtype=np.float32)
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,),
                                                    np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)

@@ -245,6 +245,10 @@ PRESETS.update([
             "penalty + 5 s episodes (this repo's own)",
             env=dict(obs_features=OBS_15 + ("prev_action",), w_action_change=0.5,
                      w_collision=COLLISION_WEIGHT, episode_steps=500)),
+    # The reference author's wish to replace IK: the same task and observation as v5, but the
+    # action moves the IK's joint goal (7-D, 0.2 rad per joint at +-1) instead of its target.
+    _preset("joint", "v5 with a 7-D joint-goal residual instead of the Cartesian lead",
+            env=dict(obs_features=OBS_15, action="joint")),
 ])
 
 

@@ -27,8 +27,9 @@ class LeadVecEnv(VecEnv):
     def __init__(self, config: EnvConfig, n_envs: int, nthread: int = 0):
         self.task = LeadTask(config, n_envs, nthread=nthread)
         obs_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
-        super().__init__(n_envs, obs_space, spaces.Box(-1.0, 1.0, (3,), np.float32))
-        self._actions = np.zeros((n_envs, 3), dtype=np.float32)
+        act_space = spaces.Box(-1.0, 1.0, (self.task.action_dim,), np.float32)
+        super().__init__(n_envs, obs_space, act_space)
+        self._actions = np.zeros((n_envs, self.task.action_dim), dtype=np.float32)
         self._stream_seed: int | None = None
 
     def seed(self, seed: int | None = None) -> Sequence[None]:

@@ -9,7 +9,7 @@ export MUJOCO_GL=${MUJOCO_GL:-egl}
 SEEDS=${SEEDS:-0-999}
 [ -d rollouts/ikpd ] || uv run ikpd.py --seeds "$SEEDS" --prefix ikpd
 [ -d rollouts/analytic ] || uv run ikpd.py --seeds "$SEEDS" --prefix analytic --controller analytic
-for study in indep_v5 indep_v9 noisy delayed curriculum; do
+for study in indep_v5 indep_v9 noisy delayed curriculum joint; do
   [ -d "sweeps/$study/runs" ] || continue
   prefixes=()
   for run in sweeps/"$study"/runs/*/; do
@@ -28,3 +28,19 @@ uv run studies/robustness.py --question noise --models archive/indep_v5.zip arch
   --seeds "${ROBUST_SEEDS:-0-499}"
 uv run studies/robustness.py --question delay --models archive/indep_v5.zip archive/delayed.zip \
   --seeds "${ROBUST_SEEDS:-0-499}"
+# Best seed of each study (chosen on the evaluation set) against another: the joint-space
+# residual and the curriculum against the Cartesian lead, the lead against the analytic lead.
+best_set() {  # the rollout set of a study's archived best seed (or a baseline set as it is)
+  case "$1" in ikpd|analytic) echo "$1"; return;; esac
+  [ -d "rollouts/$1_best" ] || uv run eval.py --seeds "$SEEDS" --prefix "$1_best" \
+    --model "archive/$1.zip" > /dev/null
+  echo "$1_best"
+}
+for pair in "indep_v5 joint" "indep_v5 curriculum" "analytic indep_v5" "indep_v5 noisy"; do
+  set -- $pair
+  a=$(best_set "$1"); b=$(best_set "$2")
+  uv run metrics.py --prefix-a "$a" --prefix-b "$b" --label-a "$1" --label-b "$2" --breakdown \
+    --markdown | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
+done
+uv run metrics.py --headline ikpd analytic "$(best_set indep_v5)" \
+  --labels Classical Analytic "RL lead (indep_v5)" --plot results/headline_indep_v5.png

@@ -276,3 +276,20 @@ def test_speed_curriculum_raises_the_cap_linearly_then_lifts_it():
     assert args.curriculum_steps == 300000 and args.curriculum_start_speed == 0.6
     with pytest.raises(UserError):
         training.parse_args(["--curriculum-steps", "1000", "--vec-env", "subproc"])
+
+
+def test_joint_residual_action_moves_the_joint_goal_and_zero_is_classical():
+    e = env_mod.PandaLeadEnv(action="joint", episode_steps=30)
+    assert e.action_space.shape == (7,)
+    ref = ArmBatch(1, nthread=1)
+    ref.reset(trajs=[trajectory.sample(4)], n_steps=30)
+    e.reset(seed=0, options={"traj_seed": 4})
+    for _ in range(10):
+        e.step(np.zeros(7, np.float32))
+        ref.step()
+        assert np.array_equal(e.core.qpos, ref.qpos)  # zero residual: the classical controller
+    goal = e.core.ik(e.core.target()[0])
+    e.step(np.array([1, 0, 0, 0, 0, 0, -1], np.float32))
+    np.testing.assert_allclose(e.core.q_goal[0] - goal[0], [0.2, 0, 0, 0, 0, 0, -0.2], atol=1e-12)
+    with pytest.raises(UserError):
+        env_mod.EnvConfig(action="joint", obs_features=("ee_pos", "prev_action"))
