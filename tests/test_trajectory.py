@@ -205,7 +205,7 @@ def test_plot_png_has_ordinary_permissions(tmp_path):
 @pytest.mark.parametrize("script", ["train.py", "eval.py", "ikpd.py", "metrics.py", "trajectory.py",
                                     "studies/bench.py", "studies/ttq.py", "studies/soak.py",
                                     "studies/sweep.py", "studies/tau.py", "studies/robustness.py",
-                                    "studies/spread.py"])
+                                    "studies/spread.py", "studies/collision.py"])
 def test_every_script_describes_itself_in_help(script):
     from conftest import run_script
 
