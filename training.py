@@ -411,7 +411,10 @@ def _callbacks(run_dir: Path, config: TrainConfig, on_eval=None, total: int = 0,
                 return
             self.baselines = {
                 "classical": evaluate(classical, config.env, config.eval_steps),
-                "analytic": evaluate(make_analytic(), config.env, config.eval_steps)}
+                # The analytic lead is a Cartesian lead: a joint-residual run compares with it
+                # on the same task with the lead action (zero action is the same controller).
+                "analytic": evaluate(make_analytic(), config.env.replace(action="lead"),
+                                     config.eval_steps)}
             best_file = run_dir / "best.json"
             if best_file.is_file():  # resuming: keep the best so far
                 best = json.loads(best_file.read_text())

@@ -17,3 +17,4 @@ sweep --name joint --presets joint --seeds 1 2 3
 sweep --name collision_v7 --presets v7 --seeds 1 2 3
 sweep --name curriculum --presets v5 --seeds 1 2 3 --train-args="--curriculum-steps 500000"
 sweep --name indep_v9 --presets v9 --seeds 1 2 3 4 5
+sweep --name joint --presets joint --seeds 1 2 3

@@ -26,9 +26,9 @@ for study in indep_v5 indep_v9 noisy delayed curriculum joint collision_v7; do
   uv run studies/sweep.py --report "$study" > "results/sweep_$study.txt"
   [ -f "archive/$study.zip" ] || uv run studies/sweep.py --archive "$study" --archive-as "$study"
 done
-uv run studies/robustness.py --question noise --models archive/indep_v5.zip archive/noisy.zip \
+[ -f results/noise.md ] || uv run studies/robustness.py --question noise --models archive/indep_v5.zip archive/noisy.zip \
   --seeds "${ROBUST_SEEDS:-0-499}"
-uv run studies/robustness.py --question delay --models archive/indep_v5.zip archive/delayed.zip \
+[ -f results/delay.md ] || uv run studies/robustness.py --question delay --models archive/indep_v5.zip archive/delayed.zip \
   --seeds "${ROBUST_SEEDS:-0-499}"
 uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v7.zip \
   archive/joint.zip

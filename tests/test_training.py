@@ -245,3 +245,16 @@ def test_resume_refuses_to_change_what_the_run_learns(tmp_path):
     with pytest.raises(UserError, match="--n-envs cannot change"):
         parse_args(["--resume", str(run_dir), "--n-envs", "3"])
     assert parse_args(["--resume", str(run_dir), "--timesteps", "7"]).timesteps == 7
+
+
+def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_path):
+    """The analytic baseline of a joint-residual run is the Cartesian lead on the same task."""
+    from conftest import run_script
+
+    res = run_script("train.py", "--preset", "joint", "--timesteps", "2048", "--n-envs", "4",
+                     "--n-steps", "256", "--eval-freq", "1024", "--runs-dir", tmp_path,
+                     "--no-progress", cwd=tmp_path, env={"MUJOCO_GL": "egl"})
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "analytic 4.05 cm" in res.stdout  # the lead baseline, evaluated on the joint task
+    (run,) = tmp_path.glob("joint__*")
+    assert (run / "best_model.zip").is_file()
