@@ -13,8 +13,8 @@ sweep --name noisy --presets v5 --seeds 1 2 3 \
   --train-args="--env.obs-noise ee_pos 0.01 target_pos 0.01 ee_vel 0.1 target_vel 0.1 target_acc 1.0"
 sweep --name delayed --presets v5 --seeds 1 2 3 \
   --train-args="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
-sweep --name joint --presets joint --seeds 1 2 3
+# joint-space residual: after the curriculum    
 sweep --name collision_v7 --presets v7 --seeds 1 2 3
 sweep --name curriculum --presets v5 --seeds 1 2 3 --train-args="--curriculum-steps 500000"
-sweep --name indep_v9 --presets v9 --seeds 1 2 3 4 5
 sweep --name joint --presets joint --seeds 1 2 3
+sweep --name indep_v9 --presets v9 --seeds 1 2 3
