@@ -14,9 +14,10 @@ def test_zoo_hyperparams_are_train_py_defaults():
     import training
 
     zoo = yaml.safe_load(CONF.read_text())["PandaLead-v0"]
-    args = training.Args()
+    args = training.TrainConfig()
     assert zoo["n_envs"] == args.n_envs and zoo["n_timesteps"] == 5_000_000
-    for key in training.PPO_KEYS:
+    for key in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda",
+                "learning_rate", "clip_range", "ent_coef"):
         assert zoo[key] == getattr(args, key), key
     # The policy string is evaluated by RL Zoo with torch.nn in scope.
     import torch.nn as nn
