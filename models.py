@@ -226,9 +226,12 @@ def spaces_for(env_config: EnvConfig):
     import numpy as np
     from gymnasium import spaces
 
+    from core import N_JOINTS
+
     dim = sum(OBS_FEATURES[f] for f in env_config.obs_features)
+    actions = 3 if env_config.action == "lead" else N_JOINTS  # a lead, or a joint residual
     return (spaces.Box(-np.inf, np.inf, (dim,), np.float32),
-            spaces.Box(-1.0, 1.0, (3,), np.float32))
+            spaces.Box(-1.0, 1.0, (actions,), np.float32))
 
 
 def load_policy(model_path: str | Path, device: str = "cpu"):

@@ -264,4 +264,7 @@ def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_pa
     expected = evaluate(make_analytic(), lead_task, 500)["mean_error_cm"]
     assert f"analytic {expected:.2f} cm" in res.stdout  # the lead baseline on the same task
     (run,) = tmp_path.glob("joint__*")
-    assert (run / "best_model.zip").is_file()
+    from models import load_policy
+
+    policy, env_config, _ = load_policy(run / "best_model.zip")  # a 7-D action loads safely
+    assert policy.action_space.shape == (7,) and env_config["action"] == "joint"
