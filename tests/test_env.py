@@ -293,3 +293,10 @@ def test_joint_residual_action_moves_the_joint_goal_and_zero_is_classical():
     np.testing.assert_allclose(e.core.q_goal[0] - goal[0], [0.2, 0, 0, 0, 0, 0, -0.2], atol=1e-12)
     with pytest.raises(UserError):
         env_mod.EnvConfig(action="joint", obs_features=("ee_pos", "prev_action"))
+
+
+def test_the_env_page_documents_every_setting():
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "env.md").read_text()
+    assert env_mod.arguments_table() in page
