@@ -300,11 +300,12 @@ class LeadTask:
             if self.speed_cap is None or traj.peak_speed <= self.speed_cap:
                 return traj
 
-    def observe(self, ids=None) -> np.ndarray:
+    def observe(self, ids=None, target=None) -> np.ndarray:
         """The (scaled, float32) observation of every slot; noise is drawn for slots ``ids``
-        only (default all): a slot's generator advances only when its observation is used."""
+        only (default all): a slot's generator advances only when its observation is used.
+        ``target``: the core's current (pos, vel, acc), when the caller already has it."""
         core, raw = self.core, self._raw
-        pos, vel, acc = core.target()
+        pos, vel, acc = core.target() if target is None else target
         source = {"ee_pos": core.tip_pos, "ee_vel": self.ee_vel, "target_pos": pos,
                   "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
                   "joint_vel": core.qvel, "prev_action": self.prev_action}
@@ -341,7 +342,8 @@ class LeadTask:
         np.subtract(ee, self._prev_ee, out=self.ee_vel)
         self.ee_vel /= self.dt
         self._prev_ee[:] = ee
-        dist = np.linalg.norm(ee - core.target()[0], axis=1)
+        now = core.target()  # (pos, vel, acc) after the step: the distance and the observation
+        dist = np.linalg.norm(ee - now[0], axis=1)
         unstable = core.unstable
         terminated = unstable | (core.self_collision & self.config.terminate_on_collision)
         truncated = ~terminated & (core.step_count >= self.config.episode_steps)
@@ -360,7 +362,7 @@ class LeadTask:
                 terms[k] = np.where(unstable, 0.0, terms[k])
         reward = sum(terms.values())
         self.prev_action = action
-        obs = self.observe()
+        obs = self.observe(target=now)
         if self._delayed:
             self._obs_hist[:, 1:] = self._obs_hist[:, :-1]
             self._obs_hist[:, 0] = obs

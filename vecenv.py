@@ -49,9 +49,9 @@ class LeadVecEnv(VecEnv):
     def step_wait(self):
         obs, reward, terminated, truncated, info = self.task.step(self._actions)
         done = terminated | truncated
-        dist, collided = info["distance"], info["self_collision"]
-        infos: list[dict[str, Any]] = [{"distance": float(dist[i]), "self_collision": bool(collided[i])}
-                                       for i in range(self.num_envs)]
+        # SB3 reads only its own keys (VecMonitor adds "episode"): no per-env copies of the
+        # task's info arrays on the hot path.
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         ended = np.flatnonzero(done)
         if len(ended):
             for i in ended:

@@ -208,7 +208,8 @@ def test_a_signal_to_the_main_process_alone_saves_and_resume_appends(tmp_path, s
         csv = run_dir / "tb" / "progress.csv"
         deadline = time.time() + 180
         while time.time() < deadline and not (csv.is_file() and len(csv.read_text().splitlines()) >= 3):
-            time.sleep(0.1)  # a couple of PPO iterations logged
+            time.sleep(0.1)  # polling for the event: a couple of PPO iterations logged
+        assert csv.is_file() and len(csv.read_text().splitlines()) >= 3, "no PPO iteration logged"
         os.kill(proc.pid, sig)  # the main process only, not its group
         out, err = proc.communicate(timeout=120)
     finally:
