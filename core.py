@@ -18,8 +18,12 @@ the PD converges on the joint goal. One DLS iteration from the measured angles i
 
 Call order per control step (`ArmBatch.step`): IK from the current kinematics -> write the
 joint goals to ctrl -> `Batch.rollout` of the substeps, recording the contact sensors after
-each substep (so a touch in any substep counts) -> `forward(stage=POS)` so the tip position
-and the next Jacobian are those of the state the step ends in -> move the target marker.
+each substep (so a touch in any substep counts) -> `Batch.jac` at the state the step ends in,
+which runs only the kinematics (a `forward(stage=POS)` would also redo collision detection and
+the mass matrix, which the next substep recomputes anyway: 3-5 us per arm, measured), and
+`forward(stage=NONE)` to copy those kinematics into the bound tip position -> move the target
+marker. The Jacobian is taken at the old tip and moved to the new one exactly (J_p(b) =
+J_p(a) - [b - a]x J_r), so the next IK needs no kinematics of its own.
 """
 
 from __future__ import annotations
@@ -174,6 +178,7 @@ class ArmBatch:
         self.floor_contact = np.zeros(n, dtype=bool)
         self.unstable = np.zeros(n, dtype=bool)
         self.q_goal = np.tile(self._home, (n, 1))
+        self._skew = np.zeros((n, 3, 3))  # cross-product matrices, rewritten every step
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
         self.reset()
@@ -197,6 +202,7 @@ class ArmBatch:
             self._mocap[ids] = self.target_pos[ids, 0]
         b.forward(ids)
         self._warnings = b.warning[:, _UNSTABLE_WARNINGS, 1].copy()
+        self._tip_jac(ids)
 
     def _set_paths(self, ids: np.ndarray, trajs, n_steps: int) -> None:
         steps = n_steps + 1
@@ -235,8 +241,7 @@ class ArmBatch:
         q = (self.qpos if q0 is None else np.broadcast_to(q0, (self.n, N_JOINTS))).copy()
         for i in range(iters):
             if i == 0 and q0 is None:
-                jac, _ = self.batch.jac(self._tip_body, self.tip_pos)
-                tip = self.tip_pos
+                jac, tip = self._jac, self.tip_pos
             else:
                 jac, tip = self._kinematics_at(q)
             jac = jac[:, :, :N_JOINTS]
@@ -269,6 +274,28 @@ class ArmBatch:
         jac, _ = self._scratch.jac(self._tip_body, self._scratch_tip)
         return jac, self._scratch_tip.copy()
 
+    def _tip_jac(self, ids: np.ndarray | None = None) -> None:
+        """The tip's position Jacobian at each arm's current state, (N, 3, nv), for the next IK."""
+        if ids is None or len(ids) == self.n:
+            self._jac = self.batch.jac(self._tip_body, self.tip_pos)[0]
+        else:
+            self._jac[ids] = self.batch.jac(self._tip_body, self.tip_pos[ids], ids=ids)[0]
+
+    def _end_of_step_kinematics(self) -> None:
+        """Tip positions and Jacobians of the state the substeps ended in, from one kinematics
+        pass: `jac` at the old tip positions (it runs mj_kinematics and mj_comPos), then
+        `forward(stage=NONE)`, which computes nothing but copies those kinematics into the bound
+        tip position, then the Jacobian moved from the old point a to the new tip b."""
+        old_tip = self.tip_pos.copy()
+        jacp, jacr = self.batch.jac(self._tip_body, old_tip)
+        self.batch.forward(stage=mujoco.mjtStage.mjSTAGE_NONE)
+        # The velocity of point b on the tip body is v_a + w x (b - a): J_b = J_a - [b - a]x J_r.
+        r = self.tip_pos - old_tip
+        skew = self._skew
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = r[:, 2], -r[:, 1], r[:, 0]
+        self._jac = jacp - skew @ jacr
+
     def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None
              ) -> None:
         """One control step of every arm: IK on (target + lead), plus an optional joint-goal
@@ -283,7 +310,7 @@ class ArmBatch:
         self._ctrl[:, :N_JOINTS] = self.q_goal
         b = self.batch
         sensors = b.rollout(self.substeps, record=("sensordata",), out=self._contacts)["sensordata"]
-        b.forward(stage=mujoco.mjtStage.mjSTAGE_POS)
+        self._end_of_step_kinematics()
         self.step_count += 1
         self._mocap[:] = self.target_pos[self._arange, self._path_index()]
         # Contact sensors, recorded after every substep: any touch in the step counts.
