@@ -9,6 +9,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# MuJoCo picks its GL platform once, when it is first imported; core.py chooses EGL on a
+# headless machine. Import it before any test module imports mujoco itself, so a render test
+# works whichever test files run before it (test_core imports mujoco first).
+import core  # noqa: E402, F401
+
 
 def run_script(script, *args, cwd=None, env=None, check=False, **kwargs) -> subprocess.CompletedProcess:
     """Run a repo script (path relative to the root) with this interpreter; text output."""
