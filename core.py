@@ -47,6 +47,7 @@ import mujoco.batch  # noqa: E402
 import numpy as np  # noqa: E402
 
 import trajectory  # noqa: E402
+from clearance import Clearance  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 SCENE_XML = ASSETS / "scene.xml"
@@ -122,10 +123,15 @@ class IKConfig:
     """Largest joint change per iteration (rad, infinity norm)."""
     limit_margin: float = 0.02
     """Joint goals stay this far (rad) inside the joint limits."""
+    clearance: float = 0.0
+    """Collision-aware IK: keep the arm's collision capsules this far apart (m) by a velocity
+    damper on the IK step (clearance.py); 0 is off, the plain IK."""
 
     def __post_init__(self):
         if not (self.iters >= 1 and self.damping >= 0 and self.max_step > 0):
             raise ValueError(f"IKConfig needs iters >= 1, damping >= 0, max_step > 0: {self}")
+        if self.clearance < 0 or (self.clearance > 0 and self.iters != 1):
+            raise ValueError(f"IKConfig's clearance must be >= 0, and needs iters == 1: {self}")
 
 
 # Sensor layout (assets/scene.xml): self_contact (found, mindist), floor_contact (found).
@@ -178,6 +184,10 @@ class ArmBatch:
         self.floor_contact = np.zeros(n, dtype=bool)
         self.unstable = np.zeros(n, dtype=bool)
         self.q_goal = np.tile(self._home, (n, 1))
+        # Collision-aware IK binds more kinematics (copied out after every batch call), so
+        # only when it is on.
+        self._clearance = (Clearance(m, b, N_JOINTS, ik.clearance) if ik.clearance > 0
+                           else None)
         self._skew = np.zeros((n, 3, 3))  # cross-product matrices, rewritten every step
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
@@ -256,6 +266,8 @@ class ArmBatch:
                 pull = cfg.nullspace_gain * (self._home - q)
                 inner = np.linalg.solve(jjt + self._eps3, (jac @ pull[:, :, None]))
                 dq += pull - (jac_t @ inner)[:, :, 0]
+            if self._clearance is not None:
+                dq = self._clearance.project(dq)
             peak = np.abs(dq).max(axis=1, keepdims=True)
             dq *= np.minimum(1.0, cfg.max_step / np.maximum(peak, 1e-300))
             q += dq

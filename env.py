@@ -100,6 +100,9 @@ class EnvConfig:
     """Gaussian noise std per observation feature, in the feature's unit (m, m/s, m/s^2, rad)."""
     ik_iters: int = 1
     """DLS iterations per control step."""
+    ik_clearance: float = 0.0
+    """Collision-aware IK: keep the arm's links this far apart (m; e.g. 0.02) by a velocity
+    damper on the IK step (clearance.py); 0: off, the plain IK."""
     obs_delay: int = 0
     """Observation latency in control steps (10 ms each): the policy sees the state of k steps ago."""
     action_delay: int = 0
@@ -148,6 +151,9 @@ class EnvConfig:
             raise UserError(f"episode_steps must be >= 1, got {self.episode_steps}")
         if self.ik_iters < 1:
             raise UserError(f"ik_iters must be >= 1, got {self.ik_iters}")
+        if self.ik_clearance < 0 or (self.ik_clearance > 0 and self.ik_iters != 1):
+            raise UserError(f"ik_clearance must be >= 0 and needs ik_iters 1, got "
+                            f"{self.ik_clearance} with ik_iters {self.ik_iters}")
         if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
             raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
                             f"{self.obs_delay}, {self.action_delay}")
@@ -226,7 +232,7 @@ class LeadTask:
         self.config = c = config
         self.n = n
         self.layout = obs_layout(c.obs_features)
-        self.core = ArmBatch(n, IKConfig(iters=c.ik_iters), nthread=nthread)
+        self.core = ArmBatch(n, IKConfig(iters=c.ik_iters, clearance=c.ik_clearance), nthread=nthread)
         self.dt = self.core.dt
         self.obs_dim = self.layout[-1][2]
         self._noise_std = np.zeros(self.obs_dim)

@@ -498,12 +498,13 @@ def seed_table(cmp: Comparison) -> Table:
 
 def seed_set_title(seeds: list[int], unit: str = "pairs") -> str:
     """'test seeds 0-999, n=1000 pairs': which seed set a figure or table is about."""
-    from seeds import TUNE_SEEDS
+    from seeds import POOL_SEEDS, TUNE_SEEDS
 
     eval_seeds = {900_000 + i for i in range(15)}
     s = set(seeds)
+    pool = POOL_SEEDS.start <= min(s) and max(s) < POOL_SEEDS.stop
     kind = ("test " if max(s) < 1000 else "eval " if s <= eval_seeds
-            else "tuning " if s <= set(TUNE_SEEDS) else "")
+            else "tuning " if s <= set(TUNE_SEEDS) else "pool " if pool else "")
     return f"{kind}seeds {_seed_list(seeds)}, n={len(seeds)} {unit}"
 
 

@@ -5,6 +5,8 @@
 | test   | 0..999 (0..99: quick subset)| drawn from the seed    | results (ikpd.py, eval.py), archive  |
 | eval   | 900000..900014              | 5 per shape, forced    | evaluation during training, sweeps   |
 | tune   | 800000..800049              | drawn from the seed    | tuning the analytic lead's tau       |
+| pool   | 1000000..1009999            | drawn from the seed    | the self-collision study's subset:   |
+|        |                             |                        | where the classical rollout collides |
 | train  | 10^7 .. 2^31-1, env i's own | drawn (or restricted)  | training: env i of training seed s   |
 |        | stream SeedSequence(s)[i]   |                        | draws from its own spawned stream    |
 """
@@ -24,6 +26,9 @@ EVAL_SET = tuple(
     for j in range(EVAL_SEEDS_PER_SHAPE)
 )
 TUNE_SEEDS = tuple(range(800_000, 800_050))
+# More trajectories from the test distribution, for a study that needs a rare subset of them
+# (self-collision: about 3% of trajectories). Never trained, tuned or selected on.
+POOL_SEEDS = range(1_000_000, 1_010_000)
 TRAIN_SEED_LOW, TRAIN_SEED_HIGH = 10_000_000, 2**31 - 1
 # One rollout file per seed: a range larger than this is a typo (0-99999999 would be 100M files).
 MAX_SEEDS = 100_000

@@ -88,13 +88,15 @@ def bench_single_env(n: int, repeats: int) -> float:
     return median_time(run, repeats) / n * 1e6
 
 
-def bench_batched(n_envs: int, threads: int, steps: int, repeats: int) -> tuple[float, float]:
+def bench_batched(n_envs: int, threads: int, steps: int, repeats: int, **settings
+                  ) -> tuple[float, float]:
     """(CPU us per env step, wall env steps/s) of the SB3 view of the batched env (what PPO
-    steps: IK, physics, contacts, reward, observation, in-step resets), random actions."""
+    steps: IK, physics, contacts, reward, observation, in-step resets), random actions;
+    ``settings`` are EnvConfig fields."""
     from env import EnvConfig
     from vecenv import LeadVecEnv
 
-    vec = LeadVecEnv(EnvConfig(), n_envs, nthread=threads)
+    vec = LeadVecEnv(EnvConfig(**settings), n_envs, nthread=threads)
     vec.seed(0)
     vec.reset()
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, n_envs, 3)).astype(np.float32)
@@ -221,6 +223,9 @@ def main() -> None:
     cpu1, rate1 = bench_batched(64, 1, steps, reps)
     row("batched env (64 envs, 1 thread): CPU per env step",
         f"{cpu1:.1f} us ({cpu1 / physics:.2f}x physics)")
+    cpu_aware, _ = bench_batched(64, 1, steps, reps, ik_clearance=0.02)
+    row("batched env (64 envs, 1 thread), collision-aware IK (--env.ik-clearance 0.02)",
+        f"{cpu_aware:.1f} us (+{cpu_aware - cpu1:.1f} us, {cpu_aware / cpu1:.2f}x the plain IK)")
     n_big = 256
     _, base = bench_batched(n_big, 1, steps // 2, reps)
     row(f"batched env, {n_big} envs, 1 thread", f"{base:,.0f} env steps/s")

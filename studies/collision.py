@@ -2,16 +2,21 @@
 
     uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v7.zip
 
-The collision-prone subset is every test seed whose classical rollout (rollouts/ikpd, from
-`uv run ikpd.py --seeds 0-999 --prefix ikpd`) touches itself at least once. On that subset,
-each controller plays the episode with early termination switched off (so every episode runs
-its full 5 s and is compared whole), and is compared with the first model by the repo's paired
-statistics: time in self-collision and mean tracking error.
+The collision-prone subset: every trajectory of the seed pool (seeds.POOL_SEEDS, 10,000
+trajectories from the test distribution that nothing trains, tunes or selects on) whose
+classical rollout touches itself at least once; about 3% of them. Finding it takes 5M control
+steps (about 4 minutes on 2 cores); the list is written beside the table, and ``--subset`` reads
+it back. On that subset each controller plays the episode with early termination switched off
+(every episode runs its full 5 s and is compared whole), and is compared with the first model
+by the repo's paired statistics: time in self-collision, episodes that touch at all, and mean
+tracking error. Beside the learned leads: the classical IK and the analytic lead, each also
+with the collision-aware IK (``--env.ik-clearance``, clearance.py), and the first model on it.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 # Studies import the pipeline, which lives at the repo root (nothing imports a study).
@@ -19,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import tyro
 
 from errors import UserError, exit_on_user_error
@@ -28,55 +34,121 @@ from errors import UserError, exit_on_user_error
 class Args:
     models: list[Path] = field(default_factory=list)
     """Archived models; the first is the reference every other controller is compared with."""
-    classical: str = "ikpd"
-    """Rollout set of the classical controller on the test seeds (defines the subset)."""
-    root: Path = Path("rollouts")
-    """Folder of rollout sets."""
+    clearance: float = 0.02
+    """The collision-aware IK's clearance (m) for the "+ clearance" rows."""
+    subset: Path | None = None
+    """Read the collision-prone seeds from this file (one per line) instead of finding them."""
     out: Path = Path("results/collision.md")
-    """Where the table goes."""
+    """Where the table goes; the subset's seeds go beside it (<out stem>_seeds.txt)."""
+
+
+def find_subset(chunk: int = 1000) -> list[int]:
+    """Pool seeds whose classical rollout touches itself (in chunks: 10k rollouts at once
+    would hold 1.6 GB)."""
+    import controllers
+    from env import EnvConfig
+    from rollout import record_many
+    from seeds import POOL_SEEDS
+
+    config = EnvConfig(episode_steps=500, terminate_on_collision=False)
+    found = []
+    for start in range(0, len(POOL_SEEDS), chunk):
+        seeds = POOL_SEEDS[start:start + chunk]
+        found += [r.seed for r in record_many(config, controllers.classical, seeds)
+                  if r.self_collision.any()]
+        print(f"  scanned {start + len(seeds):,} of {len(POOL_SEEDS):,}: {len(found)} collide",
+              flush=True)
+    return found
 
 
 @exit_on_user_error
 def main(args: Args) -> None:
     import controllers
+    from atomicio import atomic_write
     from env import EnvConfig
-    from metrics import compare, load_set
+    from metrics import compare
     from models import load_policy
     from rollout import record_many
 
     if not args.models:
         raise UserError("name at least one --models archive/NAME.zip")
-    classical_set = load_set(args.classical, args.root)
-    seeds = sorted(s for s, r in classical_set.items() if r.self_collision.any())
+    seeds_file = args.out.with_name(args.out.stem + "_seeds.txt")
+    if args.subset is not None:
+        try:
+            seeds = [int(line) for line in args.subset.read_text().split()]
+        except (OSError, ValueError) as exc:
+            raise UserError(f"cannot read the subset {args.subset}: {exc}") from None
+    else:
+        print("finding the collision-prone subset of the seed pool (classical rollouts)")
+        seeds = find_subset()
     if len(seeds) < 10:
-        raise UserError(f"only {len(seeds)} collision-prone seeds in {args.classical}: too few")
-    ctrls = {"Classical": (controllers.classical, {}), "Analytic": (controllers.make_analytic(), {})}
-    for path in args.models:
+        raise UserError(f"only {len(seeds)} collision-prone seeds: too few to compare")
+    aware = {"ik_clearance": args.clearance}
+    ctrls = {"Classical": (controllers.classical, {}),
+             "Classical + clearance": (controllers.classical, aware),
+             "Analytic": (controllers.make_analytic(), {}),
+             "Analytic + clearance": (controllers.make_analytic(), aware)}
+    for i, path in enumerate(args.models):
         policy, env_config, _ = load_policy(path)
         ctrls[Path(path).stem] = (controllers.make_policy(policy), env_config)
-    sets = {}
+        if i == 0:
+            ctrls[f"{Path(path).stem} + clearance"] = (controllers.make_policy(policy),
+                                                       {**env_config, **aware})
+    record_many(EnvConfig(episode_steps=5), controllers.classical, seeds[:2])  # warm-up: imports, caches
+    sets, cpu_us = {}, {}
     for name, (act, base) in ctrls.items():
         config = EnvConfig.from_dict({**base, "episode_steps": 500,
                                       "terminate_on_collision": False})
-        sets[name] = {r.seed: r for r in record_many(config, act, seeds)}
+        start = time.process_time()
+        sets[name] = {r.seed: r for r in record_many(config, act, seeds, nthread=1)}
+        cpu_us[name] = (time.process_time() - start) / (len(seeds) * 500) * 1e6
+        print(f"  played {name}: {cpu_us[name]:.0f} us CPU per env step", flush=True)
     ref = Path(args.models[0]).stem
-    lines = [f"`uv run studies/collision.py --models {' '.join(map(str, args.models))}`: "
-             f"{len(seeds)} collision-prone test seeds (the classical rollout touches itself); "
-             f"differences are controller - {ref}, paired by seed, 95% bootstrap CIs.", "",
+    command = ("uv run studies/collision.py --models " + " ".join(map(str, args.models))
+               + (f" --clearance {args.clearance}" if args.clearance != 0.02 else ""))
+    lines = [f"`{command}`: the {len(seeds)} trajectories of the seed pool (seeds 1000000-1009999, "
+             f"test distribution) whose classical rollout touches itself "
+             f"([{seeds_file.name}]({seeds_file.name})); 5 s episodes, early termination off. "
+             f"Differences are controller - {ref}, paired by seed, 95% bootstrap CIs; "
+             f"\"+ clearance\": the collision-aware IK at {args.clearance * 100:g} cm.", "",
              "| controller | self-collision time (%) | vs ref: mean diff | seeds with less | "
-             "mean error (cm) | vs ref: mean diff |", "|---|---|---|---|---|---|"]
+             "episodes touching (%) | mean error (cm) | vs ref: mean diff | CPU per step (us) |",
+             "|---|---|---|---|---|---|---|---|"]
     for name, rs in sets.items():
         cmp = compare(sets[ref], rs, label_a=ref, label_b=name)
         col, err = cmp.row("self_collision"), cmp.row("mean_err")
+        touching = 100 * np.mean([r.self_collision.any() for r in rs.values()])
         if name == ref:
-            lines.append(f"| {name} (ref) | {col.mean_b:.2f} | - | - | {err.mean_b:.2f} | - |")
+            lines.append(f"| {name} (ref) | {col.mean_b:.2f} | - | - | {touching:.0f} "
+                         f"| {err.mean_b:.2f} | - | {cpu_us[name]:.0f} |")
             continue
         lines.append(f"| {name} | {col.mean_b:.2f} | {_diff(col)} | {col.improved}/{col.n_pairs} "
-                     f"| {err.mean_b:.2f} | {_diff(err)} |")
+                     f"| {touching:.0f} | {err.mean_b:.2f} | {_diff(err)} | {cpu_us[name]:.0f} |")
+    lines += ["", "What the collision-aware IK does to each controller: with it minus without it, "
+              "paired by seed.", "",
+              "| controller | self-collision time: mean diff (points) | mean error: mean diff "
+              "(cm) | median error diff (cm) | CPU per step |", "|---|---|---|---|---|"]
+    for name in [n for n in sets if n.endswith(" + clearance")]:
+        plain = name.removesuffix(" + clearance")
+        cmp = compare(sets[plain], sets[name], label_a=plain, label_b=name)
+        col, err = cmp.row("self_collision"), cmp.row("mean_err")
+        lines.append(f"| {plain} | {_diff(col)} | {_diff(err)} | {_median(err)} "
+                     f"| {cpu_us[name] / cpu_us[plain]:.2f}x |")
+    lines += ["", f"CPU per step: one thread, {len(seeds)} arms in one batch, the whole loop "
+              "(controller, IK, physics, recording); a shared machine, so read the ratios."]
     table = "\n".join(lines) + "\n"
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(table)
+    with atomic_write(args.out, ".md") as tmp:
+        Path(tmp).write_text(table)
+    if args.subset is None or args.subset.resolve() != seeds_file.resolve():
+        with atomic_write(seeds_file, ".txt") as tmp:
+            Path(tmp).write_text("".join(f"{s}\n" for s in seeds))
     print(table)
+
+
+def _median(row) -> str:
+    lo, hi = row.median_ci
+    return f"{row.median_delta:+.2f} [{lo:+.2f}, {hi:+.2f}]"
 
 
 def _diff(row) -> str:

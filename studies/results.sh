@@ -10,7 +10,7 @@ export MUJOCO_GL=${MUJOCO_GL:-egl}
 SEEDS=${SEEDS:-0-999}
 [ -d rollouts/ikpd ] || uv run ikpd.py --seeds "$SEEDS" --prefix ikpd
 [ -d rollouts/analytic ] || uv run ikpd.py --seeds "$SEEDS" --prefix analytic --controller analytic
-for study in indep_v5 indep_v9 noisy delayed curriculum joint collision_v7; do
+for study in indep_v5 indep_v9 noisy delayed curriculum joint collision_v6 collision_v7; do
   [ -d "sweeps/$study/runs" ] || continue
   prefixes=()
   for run in sweeps/"$study"/runs/*/; do
@@ -30,8 +30,10 @@ done
   --seeds "${ROBUST_SEEDS:-0-499}"
 [ -f results/delay.md ] || uv run studies/robustness.py --question delay --models archive/indep_v5.zip archive/delayed.zip \
   --seeds "${ROBUST_SEEDS:-0-499}"
-uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v7.zip \
-  archive/joint.zip
+# The collision-prone subset is found once (5M classical steps) and read back afterwards.
+subset=(); [ -f results/collision_seeds.txt ] && subset=(--subset results/collision_seeds.txt)
+uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v6.zip \
+  archive/collision_v7.zip archive/joint.zip "${subset[@]}"
 # Best seed of each study (chosen on the evaluation set) against another: the joint-space
 # residual and the curriculum against the Cartesian lead, the lead against the analytic lead.
 best_set() {  # the rollout set of a study's archived best seed (or a baseline set as it is)

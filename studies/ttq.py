@@ -37,6 +37,10 @@ CANDIDATES: dict[str, list[str]] = {
     "b32x128_bs1024_lr1e-3": ["--n-envs", "32", "--vec-env", "batched", "--n-steps", "128",
                               "--batch-size", "1024", "--n-epochs", "10",
                               "--learning-rate", "1e-3"],
+    # The same with the speed curriculum of docs/questions.md (slow targets first).
+    "b32x128_bs1024_lr1e-3_curr": ["--n-envs", "32", "--vec-env", "batched", "--n-steps", "128",
+                                   "--batch-size", "1024", "--n-epochs", "10",
+                                   "--learning-rate", "1e-3", "--curriculum-steps", "500000"],
 }
 
 

@@ -9,7 +9,7 @@ import env as env_mod
 import trajectory
 from controllers import classical, make_analytic, make_policy
 from rollout import ARRAY_KEYS, record, record_many
-from seeds import EVAL_SET, TEST_SEEDS, TRAIN_SEED_LOW, TUNE_SEEDS
+from seeds import EVAL_SET, POOL_SEEDS, TEST_SEEDS, TRAIN_SEED_LOW, TUNE_SEEDS
 
 STEPS = 60
 # 24 trajectory seeds, 8 of each shape (the seed draws the shape; we pick seeds so each shape is
@@ -148,7 +148,7 @@ def test_training_seeds_draw_independent_trajectory_streams():
     shared = len(set(a) & set(b)) / 10_000
     assert shared < 0.01, f"training seeds 1 and 2 share {shared:.1%} of their trajectories"
     assert len(set(a)) > 9_900  # within one training seed the envs do not repeat each other
-    held_out = set(TEST_SEEDS) | {s for s, _ in EVAL_SET} | set(TUNE_SEEDS) | set(range(1000))
+    held_out = set(TEST_SEEDS) | {s for s, _ in EVAL_SET} | set(TUNE_SEEDS) | set(POOL_SEEDS)
     assert min(a + b) >= TRAIN_SEED_LOW and not held_out & set(a + b)
 
 
