@@ -91,6 +91,8 @@ class Clearance:
         self._radius = model.geom_size[:, 0]
         self._half = model.geom_size[:, 1]
         self._bodies = model.geom_bodyid[self.pairs]  # (P, 2)
+        # Bounding spheres: a pair is no nearer than its centres' distance less this.
+        self._bound = (self._half + self._radius)[g1] + (self._half + self._radius)[g2]
         # moves[b, i]: joint i turns body b (joint i's body is b or one of b's ancestors).
         moves = np.zeros((model.nbody, n_joints), dtype=bool)
         for body in range(model.nbody):
@@ -110,24 +112,40 @@ class Clearance:
     def distances(self):
         """Surface distance (m), unit normal from the first capsule to the second, and the
         two surface points, for every arm and pair: (N, P), (N, P, 3), (N, P, 3), (N, P, 3)."""
+        dist, c1, c2 = self._closest()
+        return (dist, *self._surface(c1, c2, self.pairs))
+
+    def _closest(self, within: float = np.inf):
+        """Surface distances (N, P) and the closest points of the capsules' segments (N, P, 3).
+        Pairs whose bounding spheres are farther apart than ``within`` are skipped: their
+        distance is reported as infinite and their points as zero."""
         n, (g1, g2) = self._geom_pos.shape[0], self.pairs.T
-        axis = self._geom_mat.reshape(n, -1, 3, 3)[:, :, :, 2]  # each capsule's local z
-        ends = []
-        for g in (g1, g2):
-            centre, half = self._geom_pos[:, g], axis[:, g] * self._half[g][None, :, None]
-            ends += [(centre - half).reshape(-1, 3), (centre + half).reshape(-1, 3)]
-        c1, c2 = segment_closest_points(*ends)
-        delta = (c2 - c1).reshape(n, -1, 3)
-        centres = np.linalg.norm(delta, axis=-1)
-        normal = delta / np.maximum(centres, 1e-12)[..., None]
-        r1, r2 = self._radius[g1], self._radius[g2]
-        p1 = c1.reshape(n, -1, 3) + r1[:, None] * normal
-        p2 = c2.reshape(n, -1, 3) - r2[:, None] * normal
-        return centres - r1 - r2, normal, p1, p2
+        centre1, centre2 = self._geom_pos[:, g1], self._geom_pos[:, g2]
+        dist = np.full((n, len(self.pairs)), np.inf)
+        c1, c2 = np.zeros((2, n, len(self.pairs), 3))
+        check = (np.linalg.norm(centre2 - centre1, axis=-1) - self._bound) < within
+        i, k = np.nonzero(check)
+        if i.size:
+            axis = self._geom_mat.reshape(n, -1, 3, 3)[i, :, :, 2]  # capsules' local z, (M, G, 3)
+            rows = np.arange(i.size)
+            half1 = axis[rows, g1[k]] * self._half[g1[k], None]
+            half2 = axis[rows, g2[k]] * self._half[g2[k], None]
+            a, b = centre1[i, k], centre2[i, k]
+            p, q = segment_closest_points(a - half1, a + half1, b - half2, b + half2)
+            c1[i, k], c2[i, k] = p, q
+            dist[i, k] = np.linalg.norm(q - p, axis=-1) - self._radius[g1[k]] - self._radius[g2[k]]
+        return dist, c1, c2
+
+    def _surface(self, c1, c2, pairs):
+        """Unit normals and surface points from segment points c1, c2 of capsule pairs."""
+        delta = c2 - c1
+        normal = delta / np.maximum(np.linalg.norm(delta, axis=-1), 1e-12)[..., None]
+        r1, r2 = self._radius[pairs[..., 0]], self._radius[pairs[..., 1]]
+        return normal, c1 + r1[..., None] * normal, c2 - r2[..., None] * normal
 
     def project(self, dq: np.ndarray) -> np.ndarray:
         """The step nearest dq (least squares) that meets every near pair's constraint."""
-        dist, normal, p1, p2 = self.distances()
+        dist, c1, c2 = self._closest(within=self.clearance + INFLUENCE)
         k = min(SLOTS, dist.shape[1])
         nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]  # (N, k) pair indices
         d = np.take_along_axis(dist, nearest, 1)
@@ -137,23 +155,27 @@ class Clearance:
             return dq
         pick = nearest[rows]
         take = lambda x: np.take_along_axis(x[rows], pick[..., None], 1)  # noqa: E731
-        n_, a1, a2 = take(normal), take(p1), take(p2)  # (R, k, 3)
+        n_, a1, a2 = self._surface(take(c1), take(c2), self.pairs[pick])  # (R, k, 3)
         body1, body2 = self._bodies[pick, 0], self._bodies[pick, 1]  # (R, k)
         z, anchor = self._axis[rows][:, None], self._anchor[rows][:, None]  # (R, 1, J, 3)
         # d_dot per joint: n . (z_i x (p2 - anchor_i)) [i moves body2] - same for p1, body1.
         v2 = np.cross(z, a2[:, :, None] - anchor) * self._moves[body2][..., None]
         v1 = np.cross(z, a1[:, :, None] - anchor) * self._moves[body1][..., None]
-        a = ((v2 - v1) * n_[:, :, None]).sum(-1)  # (R, k, J)
+        a = np.einsum("rkjc,rkc->rkj", v2 - v1, n_)  # (R, k, J)
         b = np.where(near[rows], -self.gain * (d[rows] - self.clearance), -np.inf)
         x = dq[rows].copy()
         lam = np.zeros(b.shape)
-        norm2 = np.maximum((a * a).sum(-1), 1e-12)
+        norm2 = np.maximum(np.einsum("rkj,rkj->rk", a, a), 1e-12)
         for _ in range(SWEEPS):
+            moved = 0.0
             for j in range(k):
-                step = (b[:, j] - (a[:, j] * x).sum(-1)) / norm2[:, j]
+                step = (b[:, j] - np.einsum("rj,rj->r", a[:, j], x)) / norm2[:, j]
                 step = np.maximum(step, -lam[:, j])  # the multiplier stays >= 0
                 lam[:, j] += step
                 x += step[:, None] * a[:, j]
+                moved = max(moved, float(np.abs(step).max()))
+            if moved < 1e-12:  # converged: a sweep that changes nothing
+                break
         out = dq.copy()
         out[rows] = x
         return out

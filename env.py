@@ -462,6 +462,11 @@ class PandaLeadEnv(gym.Env):
         self._renderer = self._viewer = self._render_data = None
         self.trail: list[np.ndarray] = []
 
+    def set_speed_cap(self, cap: float | None) -> None:
+        """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any);
+        the speed curriculum sets it through SB3's env_method."""
+        self.task.speed_cap = cap
+
     # Sidecars and older callers read these.
     @property
     def config(self) -> dict:

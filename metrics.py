@@ -15,6 +15,7 @@ computed: docs/metrics.md.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import warnings
@@ -714,10 +715,11 @@ class Args:
     """Rollout prefix of set A (the baseline), read from <root>/<prefix>/seed_*.npz."""
     prefix_b: str = "eval"
     """Rollout prefix of set B (compared against A: differences are B - A)."""
-    label_a: str = "Classical"
-    """Display name of set A (also picks its colour in figures)."""
-    label_b: str = "RL+Lead"
-    """Display name of set B."""
+    label_a: str | None = None
+    """Display name of set A (also picks its colour in figures); default: from the rollouts'
+    controller (Classical, Analytic or RL+Lead), the prefix where both sets share one."""
+    label_b: str | None = None
+    """Display name of set B; default as for A."""
     root: Path = rollout.ROLLOUT_DIR
     """Folder that holds the rollout prefixes."""
     breakdown: bool = False
@@ -794,8 +796,23 @@ def run_headline(args: Args, console: Console) -> None:
     _say(console, f"wrote {plot_headline(data, p.seeds, args.plot)}")
 
 
+CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead"}
+
+
+def controller_label(rollouts: dict, prefix: str) -> str:
+    """A set's display name from the controller its rollouts record, else its prefix."""
+    kinds = {r.meta.get("controller") for r in rollouts.values()}
+    return CONTROLLER_LABELS.get(kinds.pop(), prefix) if len(kinds) == 1 else prefix
+
+
 def run_compare(args: Args, console: Console) -> None:
     a, b = load_set(args.prefix_a, args.root), load_set(args.prefix_b, args.root)
+    if args.label_a is None or args.label_b is None:
+        auto_a, auto_b = controller_label(a, args.prefix_a), controller_label(b, args.prefix_b)
+        if auto_a == auto_b:  # two policies, say: the prefixes tell them apart
+            auto_a, auto_b = args.prefix_a, args.prefix_b
+        args = dataclasses.replace(args, label_a=args.label_a or auto_a,
+                                   label_b=args.label_b or auto_b)
     # Name the prefixes in errors; the Comparison itself keeps the display labels.
     name_a, name_b = f"{args.label_a} ({args.prefix_a})", f"{args.label_b} ({args.prefix_b})"
     check_compatible(a, b, name_a, name_b)

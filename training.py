@@ -85,9 +85,11 @@ class TrainConfig:
     """Save a checkpoint every this many total steps."""
     stop_below_cm: float | None = None
     """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
-    curriculum_steps: int = 0
+    curriculum_steps: int = 500_000
     """Speed curriculum: over this many steps the training targets' peak-speed cap rises
-    linearly from --curriculum-start-speed to none (0: no curriculum; batched vec env only)."""
+    linearly from --curriculum-start-speed to none (0: no curriculum). On by default: it
+    reaches the time-to-quality threshold in half the steps (docs/performance.md) and ends as
+    well (docs/questions.md 5); the presets, the reference ladder, run without it."""
     curriculum_start_speed: float = 0.8
     """Peak-speed cap (m/s) of the training targets at step 0 of a curriculum."""
     preset: str | None = None
@@ -130,8 +132,6 @@ class TrainConfig:
         if isinstance(self.curriculum_steps, bool) or not isinstance(self.curriculum_steps, int) \
                 or self.curriculum_steps < 0:
             raise UserError(f"--curriculum-steps must be an integer >= 0, got {self.curriculum_steps!r}")
-        if self.curriculum_steps and self.vec_env != "batched":
-            raise UserError("--curriculum-steps needs --vec-env batched (it sets the envs' cap)")
         if not (math.isfinite(self.curriculum_start_speed) and self.curriculum_start_speed > 0.25):
             raise UserError("--curriculum-start-speed must be above 0.25 m/s, got "
                             f"{self.curriculum_start_speed!r}")
@@ -153,6 +153,8 @@ class TrainConfig:
         if "ppo" in d:  # the older layout
             d.update(d.pop("ppo"))
             d["env"] = d.pop("env_resolved", None) or d.get("env", {})
+        # Configs written before the curriculum existed trained without one.
+        d.setdefault("curriculum_steps", 0)
         names = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in names})
 
@@ -204,7 +206,7 @@ def check_plain_name(value: str, flag: str) -> str:
 
 # The reference work's configuration (what `--reference-hparams` starts from).
 REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10,
-                         learning_rate=3e-4, log_std_init=0.0)
+                         learning_rate=3e-4, log_std_init=0.0, curriculum_steps=0)
 
 # Penetration is millimetres deep, so the weight is large: 1 cm deep costs 1 per step, about
 # ten times the distance term at a typical 10 cm error.
@@ -214,6 +216,7 @@ COLLISION_WEIGHT = 100.0
 def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
     env = EnvConfig(**kw.pop("env", {}))
     PRESET_DOCS[name] = doc
+    kw.setdefault("curriculum_steps", 0)  # the ladder as the reference trained it
     return name, TrainConfig(env=env, preset=name, **kw)
 
 
@@ -508,15 +511,20 @@ def speed_cap(step: int, start: float, steps: int) -> float | None:
 
 
 def SpeedCurriculum(vec, start: float, steps: int):  # noqa: N802 (a callback factory)
-    """An SB3 callback that sets the batched envs' speed cap before each rollout."""
+    """An SB3 callback that sets the envs' speed cap before each rollout: on the batch's task
+    directly, or through env_method on SB3's SubprocVecEnv and DummyVecEnv."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    task = vec.venv.task  # VecMonitor -> LeadVecEnv -> LeadTask
+    task = getattr(vec.venv, "task", None)  # VecMonitor -> LeadVecEnv -> LeadTask
 
     class _Curriculum(BaseCallback):
         def _on_rollout_start(self) -> None:
-            task.speed_cap = speed_cap(self.num_timesteps, start, steps)
-            self.logger.record("train/speed_cap", task.speed_cap or 0.0)
+            cap = speed_cap(self.num_timesteps, start, steps)
+            if task is not None:
+                task.speed_cap = cap
+            else:
+                vec.env_method("set_speed_cap", cap)
+            self.logger.record("train/speed_cap", cap or 0.0)
 
         def _on_step(self) -> bool:
             return True
@@ -734,6 +742,16 @@ reads only tensors (`torch.load(weights_only=True)`), after checking the zip's S
     return out
 
 
+def _check_device(device: str, torch) -> None:
+    """A CUDA device that is not there is a clear error (SB3 would quietly use the CPU)."""
+    try:
+        kind = torch.device(device).type
+    except (RuntimeError, ValueError):
+        raise UserError(f"--device {device!r} is not a torch device (e.g. cpu, cuda, cuda:1)") from None
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise UserError(f"--device {device}: no CUDA GPU is available to torch here; use --device cpu")
+
+
 def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
     """Run (or resume) one training run; returns its folder. ``args`` as `parse_args` makes
     them (the preset already applied). ``on_eval(timesteps, metrics)`` is called after each
@@ -749,6 +767,7 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
 
     if args.archive:
         _check_archive_free(args.archive, args.force)  # before hours of training, not after
+    _check_device(args.device, torch)
     if args.resume:
         run_dir = Path(args.resume)
         config = args.config()
@@ -795,6 +814,10 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
         print(f"note: PPO collects whole rollouts of {config.n_steps} x {config.n_envs} = "
               f"{per_rollout:,} steps, so this run ends at {model.num_timesteps + real:,} steps "
               f"(asked: {config.timesteps:,})")
+    if config.curriculum_steps > model.num_timesteps:
+        print(f"note: speed curriculum: the training targets' peak speed is capped at "
+              f"{config.curriculum_start_speed:g} m/s, the cap rising to none at "
+              f"{config.curriculum_steps:,} steps (--curriculum-steps 0 turns it off)")
     signals = _Signals()
     tracker, checkpoint, progress = _callbacks(run_dir, config, on_eval, real,
                                                args.progress, signals)

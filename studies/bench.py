@@ -37,6 +37,10 @@ class Args:
     """Tiny budgets, for a smoke test of the script itself."""
     out: Path | None = None
     """Also write the markdown table to this file."""
+    step_pairs: int = 0
+    """Only the per-step ratio: time raw physics and the batched env step back to back this
+    many times and print each ratio and their median (steadier than one pair on a shared
+    machine, whose speed drifts between the start and the end of a full run)."""
 
 
 def median_time(fn, repeats: int) -> float:
@@ -191,8 +195,6 @@ def bench_memory(timesteps: int) -> tuple[float, float]:
         return peak, time.perf_counter() - t
 
 
-
-
 def repo_default() -> dict:
     from training import TrainConfig
 
@@ -210,6 +212,16 @@ def main() -> None:
     n = 200 if args.quick else 2000
     secs = 0.5 if args.quick else 2.0
     rows: list[tuple[str, str]] = []
+    if args.step_pairs:
+        ratios = []
+        for _ in range(args.step_pairs):
+            physics, cpu = bench_physics(n, reps), bench_batched(64, 1, 200, reps)[0]
+            ratios.append(cpu / physics)
+            print(f"raw physics {physics:.1f} us, batched env step (64 envs, 1 thread) "
+                  f"{cpu:.1f} us: {cpu / physics:.2f}x", flush=True)
+        print(f"median of {len(ratios)} pairs: {statistics.median(ratios):.2f}x physics "
+              f"(range {min(ratios):.2f}-{max(ratios):.2f})")
+        return
 
     def row(name: str, value: str) -> None:
         rows.append((name, value))

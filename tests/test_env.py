@@ -274,8 +274,34 @@ def test_speed_curriculum_raises_the_cap_linearly_then_lifts_it():
     assert training.speed_cap(1000, 0.8, 1000) is None
     args = training.parse_args(["--curriculum-steps", "300000", "--curriculum-start-speed", "0.6"])
     assert args.curriculum_steps == 300000 and args.curriculum_start_speed == 0.6
-    with pytest.raises(UserError):
-        training.parse_args(["--curriculum-steps", "1000", "--vec-env", "subproc"])
+    # On by default; the presets (the reference ladder) and the reference settings run without.
+    assert training.parse_args([]).curriculum_steps == training.TrainConfig().curriculum_steps > 0
+    assert training.parse_args(["--preset", "v5"]).curriculum_steps == 0
+    assert training.parse_args(["--reference-hparams"]).curriculum_steps == 0
+    assert training.parse_args(["--preset", "v5", "--curriculum-steps", "1000"]).curriculum_steps == 1000
+    # A run folder from before the curriculum existed resumes without one.
+    assert training.TrainConfig.from_dict({"n_envs": 4}).curriculum_steps == 0
+
+
+def test_speed_curriculum_reaches_sb3s_own_vec_envs():
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+
+    import training
+
+    vec = VecMonitor(DummyVecEnv([lambda: env_mod.PandaLeadEnv(episode_steps=5)] * 2))
+    callback = training.SpeedCurriculum(vec, 0.6, 1000)
+    callback.init_callback(type("Model", (), {"num_timesteps": 0, "logger": _NullLogger(),
+                                              "get_env": lambda self: vec})())
+    callback.on_rollout_start()
+    assert [e.task.speed_cap for e in vec.venv.envs] == [pytest.approx(0.6)] * 2
+    callback.num_timesteps = 1000
+    callback.on_rollout_start()
+    assert [e.task.speed_cap for e in vec.venv.envs] == [None, None]
+
+
+class _NullLogger:
+    def record(self, *args, **kwargs):
+        pass
 
 
 def test_joint_residual_action_moves_the_joint_goal_and_zero_is_classical():

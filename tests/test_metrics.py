@@ -487,8 +487,22 @@ def test_cli_non_finite_and_failed_seeds_named_and_n_counts_pairs_used(root):
     assert "n=2 pairs" in p.stdout
     nonfinite = [ln for ln in p.stdout.splitlines() if ln.startswith("warning: non-finite")]
     failed = [ln for ln in p.stdout.splitlines() if ln.startswith("warning: failed")]
-    assert len(nonfinite) == 1 and "2 (RL+Lead: ee_pos)" in nonfinite[0]
-    assert len(failed) == 1 and "1 (Classical: unstable)" in failed[0]
+    # Both sets record the same controller ("test"), so their prefixes name them.
+    assert len(nonfinite) == 1 and "2 (learned: ee_pos)" in nonfinite[0]
+    assert len(failed) == 1 and "1 (base: unstable)" in failed[0]
+
+
+def test_cli_names_each_set_by_its_controller_by_default(tmp_path):
+    for prefix, controller in (("ikpd", "classical"), ("lead", "analytic"), ("mine", "policy")):
+        for s in range(3):
+            rollout.save(offset_rollout(0.01, seed=s, shape="circle", controller=controller),
+                         rollout.rollout_path(prefix, s, tmp_path))
+    p = run_cli("--root", str(tmp_path), "--prefix-a", "lead", "--prefix-b", "mine")
+    assert p.returncode == 0, p.stderr
+    assert "A = Analytic (" in p.stdout and "B = RL+Lead (" in p.stdout
+    p = run_cli("--root", str(tmp_path), "--prefix-a", "ikpd", "--prefix-b", "lead",
+                "--label-b", "Mine")
+    assert "A = Classical (" in p.stdout and "B = Mine (" in p.stdout
 
 
 def test_cli_mixed_controllers_is_one_error_line(root):

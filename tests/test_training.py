@@ -269,3 +269,22 @@ def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_pa
 
     policy, env_config, _ = load_policy(run / "best_model.zip")  # a 7-D action loads safely
     assert policy.action_space.shape == (7,) and env_config["action"] == "joint"
+
+
+def test_a_cuda_device_that_is_not_there_is_a_clear_error():
+    import torch
+
+    import training
+
+    class Torch:  # torch, with or without a GPU
+        device = staticmethod(torch.device)
+
+        def __init__(self, gpu):
+            self.cuda = type("cuda", (), {"is_available": staticmethod(lambda: gpu)})
+
+    with pytest.raises(UserError, match="no CUDA GPU"):
+        training._check_device("cuda", Torch(gpu=False))
+    with pytest.raises(UserError, match="not a torch device"):
+        training._check_device("gpu0", Torch(gpu=True))
+    training._check_device("cuda:0", Torch(gpu=True))
+    training._check_device("cpu", Torch(gpu=False))
