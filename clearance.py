@@ -30,9 +30,9 @@ import numpy as np
 INFLUENCE = 0.05
 """Pairs farther than clearance + this (m) are not constrained."""
 SLOTS = 3
-"""Constraints per arm and step: its nearest pairs (more are never near at once here)."""
+"""Constraints per arm and step: its three nearest pairs (a fourth near pair waits a step)."""
 SWEEPS = 10
-"""Hildreth sweeps over the constraints."""
+"""Most Hildreth sweeps over the constraints (it stops at a sweep that changes nothing)."""
 
 
 def capsule_pairs(model: mujoco.MjModel) -> np.ndarray:
@@ -102,7 +102,6 @@ class Clearance:
                     a = model.body_parentid[a]
                 moves[body, i] = a == model.jnt_bodyid[i]
         self._moves = moves
-        self._n_joints = n_joints
         # Live views of the kinematics (bound outputs: refreshed by every batch call).
         self._geom_pos = batch.bind("geom_xpos")
         self._geom_mat = batch.bind("geom_xmat")
