@@ -264,6 +264,10 @@ class LeadTask:
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
 
+    def set_speed_cap(self, cap: float | None) -> None:
+        """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any)."""
+        self.speed_cap = cap
+
     def reset(self, ids=None, traj_seeds=None, shapes=None) -> np.ndarray:
         """Start new episodes in slots ``ids`` (default all); returns the observation of all.
         Trajectory seeds (and shapes) default to draws from each slot's own generator."""
@@ -463,9 +467,8 @@ class PandaLeadEnv(gym.Env):
         self.trail: list[np.ndarray] = []
 
     def set_speed_cap(self, cap: float | None) -> None:
-        """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any);
-        the speed curriculum sets it through SB3's env_method."""
-        self.task.speed_cap = cap
+        """See LeadTask.set_speed_cap (the speed curriculum calls it through env_method)."""
+        self.task.set_speed_cap(cap)
 
     # Sidecars and older callers read these.
     @property

@@ -511,19 +511,14 @@ def speed_cap(step: int, start: float, steps: int) -> float | None:
 
 
 def SpeedCurriculum(vec, start: float, steps: int):  # noqa: N802 (a callback factory)
-    """An SB3 callback that sets the envs' speed cap before each rollout: on the batch's task
-    directly, or through env_method on SB3's SubprocVecEnv and DummyVecEnv."""
+    """An SB3 callback that sets the envs' speed cap before each rollout, through SB3's
+    env_method (the batched env, SubprocVecEnv and DummyVecEnv all take it)."""
     from stable_baselines3.common.callbacks import BaseCallback
-
-    task = getattr(vec.venv, "task", None)  # VecMonitor -> LeadVecEnv -> LeadTask
 
     class _Curriculum(BaseCallback):
         def _on_rollout_start(self) -> None:
             cap = speed_cap(self.num_timesteps, start, steps)
-            if task is not None:
-                task.speed_cap = cap
-            else:
-                vec.env_method("set_speed_cap", cap)
+            vec.env_method("set_speed_cap", cap)
             self.logger.record("train/speed_cap", cap or 0.0)
 
         def _on_step(self) -> bool:

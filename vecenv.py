@@ -74,8 +74,15 @@ class LeadVecEnv(VecEnv):
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
         raise AttributeError("the batched env's settings are fixed at construction (EnvConfig)")
 
+    # Task-wide methods: one call sets every env of the batch (SB3's env_method, all indices).
+    TASK_METHODS = ("set_speed_cap",)
+
     def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
-        raise AttributeError(f"the batched env has no per-env method {method_name!r}")
+        if method_name not in self.TASK_METHODS:
+            raise AttributeError(f"the batched env has no per-env method {method_name!r}")
+        if len(self._indices(indices)) != self.num_envs:
+            raise AttributeError(f"{method_name} sets every env of the batch at once")
+        return [getattr(self.task, method_name)(*args, **kwargs)] * self.num_envs
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         return [False] * len(self._indices(indices))

@@ -297,6 +297,19 @@ def test_speed_curriculum_reaches_sb3s_own_vec_envs():
     callback.num_timesteps = 1000
     callback.on_rollout_start()
     assert [e.task.speed_cap for e in vec.venv.envs] == [None, None]
+    # The batched env takes the same call, for all its envs at once (and only so).
+    from vecenv import LeadVecEnv
+
+    batched = VecMonitor(LeadVecEnv(env_mod.EnvConfig(episode_steps=5), 3, nthread=1))
+    callback = training.SpeedCurriculum(batched, 0.6, 1000)
+    callback.init_callback(type("Model", (), {"num_timesteps": 0, "logger": _NullLogger(),
+                                              "get_env": lambda self: batched})())
+    callback.on_rollout_start()
+    assert batched.venv.task.speed_cap == pytest.approx(0.6)
+    with pytest.raises(AttributeError):
+        batched.env_method("set_speed_cap", None, indices=[0])
+    with pytest.raises(AttributeError):
+        batched.env_method("reset")
 
 
 class _NullLogger:
