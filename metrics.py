@@ -68,7 +68,23 @@ COUNTED = {"out_reach_err"}
 # One colour per controller label in every figure; other labels take the next free colour.
 COLOURS = {"Classical": "tab:blue", "Analytic": "tab:orange", "RL+Lead": "tab:green"}
 # Display names for the usual prefixes (--headline without --labels).
+CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead"}
 DEFAULT_LABELS = {"ikpd": "Classical", "analytic": "Analytic", "eval": "RL+Lead"}
+
+
+def controller_label(rollouts: dict, prefix: str) -> str:
+    """A set's display name: from the controller its rollouts record, else from its usual
+    prefix (ikpd, analytic, eval), else the prefix itself."""
+    kinds = {r.meta.get("controller") for r in rollouts.values()}
+    known = CONTROLLER_LABELS.get(kinds.pop()) if len(kinds) == 1 else None
+    return known or DEFAULT_LABELS.get(prefix, prefix)
+
+
+def set_labels(sets: list[dict], prefixes: list[str]) -> list[str]:
+    """controller_label for each set; sets that would share a name (two policies, say) are
+    named by their prefixes instead."""
+    labels = [controller_label(s, p) for s, p in zip(sets, prefixes, strict=True)]
+    return [p if labels.count(lab) > 1 else lab for lab, p in zip(labels, prefixes, strict=True)]
 SHAPES = ("circle", "fig8", "fly")
 # Headline bins hold at least this many rollouts (fewer bins in a small panel): a CI from
 # fewer values means little.
@@ -468,6 +484,14 @@ def _ci(ci: tuple[float, float], fmt: str) -> str:
     return "[n/a]" if lo == "n/a" else f"[{lo}, {hi}]"
 
 
+def diff_text(value: float, ci: tuple[float, float], fmt: str = ".2f", verdict: bool = True
+              ) -> str:
+    """'+1.23 [+0.45, +2.01] shown': a paired difference, its 95% CI and whether it is shown
+    (the studies' tables use it)."""
+    text = f"{_num(value, fmt, True)} {_ci(ci, fmt)}"
+    return text + (" shown" if shown(ci) else " not shown") if verdict else text
+
+
 def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str) -> Table:
     table = Table(title=title, title_justify="left")
     for name in ("Metric", "better", f"{label_a} mean ± std", f"{label_a} median",
@@ -733,8 +757,8 @@ class Args:
     """Headline figure instead of the A/B table: mean and median error against the target's
     peak speed for these 2 or more prefixes (e.g. ikpd analytic eval); needs --plot."""
     labels: tuple[str, ...] = ()
-    """Display names for the --headline prefixes, in order (default: Classical for ikpd,
-    Analytic for analytic, RL+Lead for eval, else the prefix)."""
+    """Display names for the --headline prefixes, in order (default: from each set's
+    controller, as for --label-a; the prefixes where two sets would share a name)."""
     speed_bins: int = 5
     """Number of equal-count peak-speed bins in the headline figure."""
     settle_time: float = 0.5
@@ -782,10 +806,11 @@ def run_headline(args: Args, console: Console) -> None:
                         f"{len(args.headline)} --headline prefixes")
     if args.speed_bins < 1:
         raise UserError(f"--speed-bins must be at least 1, got {args.speed_bins}")
-    labels = list(args.labels) or [DEFAULT_LABELS.get(p, p) for p in args.headline]
+    loaded = [load_set(p, args.root) for p in args.headline]
+    labels = list(args.labels) or set_labels(loaded, list(args.headline))
     if len(set(labels)) != len(labels):
         raise UserError(f"labels must differ, got {labels}; use --labels")
-    sets = {lab: load_set(p, args.root) for lab, p in zip(labels, args.headline, strict=True)}
+    sets = dict(zip(labels, loaded, strict=True))
     check_sets(sets)
     p = pair(sets)
     require_seeds(p, sets)
@@ -796,21 +821,12 @@ def run_headline(args: Args, console: Console) -> None:
     _say(console, f"wrote {plot_headline(data, p.seeds, args.plot)}")
 
 
-CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead"}
-
-
-def controller_label(rollouts: dict, prefix: str) -> str:
-    """A set's display name from the controller its rollouts record, else its prefix."""
-    kinds = {r.meta.get("controller") for r in rollouts.values()}
-    return CONTROLLER_LABELS.get(kinds.pop(), prefix) if len(kinds) == 1 else prefix
 
 
 def run_compare(args: Args, console: Console) -> None:
     a, b = load_set(args.prefix_a, args.root), load_set(args.prefix_b, args.root)
     if args.label_a is None or args.label_b is None:
-        auto_a, auto_b = controller_label(a, args.prefix_a), controller_label(b, args.prefix_b)
-        if auto_a == auto_b:  # two policies, say: the prefixes tell them apart
-            auto_a, auto_b = args.prefix_a, args.prefix_b
+        auto_a, auto_b = set_labels([a, b], [args.prefix_a, args.prefix_b])
         args = dataclasses.replace(args, label_a=args.label_a or auto_a,
                                    label_b=args.label_b or auto_b)
     # Name the prefixes in errors; the Comparison itself keeps the display labels.

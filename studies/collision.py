@@ -66,7 +66,7 @@ def main(args: Args) -> None:
     import controllers
     from atomicio import atomic_write
     from env import EnvConfig
-    from metrics import compare
+    from metrics import compare, diff_text
     from models import load_policy
     from rollout import record_many
 
@@ -122,8 +122,9 @@ def main(args: Args) -> None:
             lines.append(f"| {name} (ref) | {col.mean_b:.2f} | - | - | {touching:.0f} "
                          f"| {err.mean_b:.2f} | - | {cpu_us[name]:.0f} |")
             continue
-        lines.append(f"| {name} | {col.mean_b:.2f} | {_diff(col)} | {col.improved}/{col.n_pairs} "
-                     f"| {touching:.0f} | {err.mean_b:.2f} | {_diff(err)} | {cpu_us[name]:.0f} |")
+        lines.append(f"| {name} | {col.mean_b:.2f} | {diff_text(col.delta, col.ci)} "
+                     f"| {col.improved}/{col.n_pairs} | {touching:.0f} | {err.mean_b:.2f} "
+                     f"| {diff_text(err.delta, err.ci)} | {cpu_us[name]:.0f} |")
     lines += ["", "What the collision-aware IK does to each controller: with it minus without it, "
               "paired by seed.", "",
               "| controller | self-collision time: mean diff (points) | mean error: mean diff "
@@ -132,8 +133,9 @@ def main(args: Args) -> None:
         plain = name.removesuffix(" + clearance")
         cmp = compare(sets[plain], sets[name], label_a=plain, label_b=name)
         col, err = cmp.row("self_collision"), cmp.row("mean_err")
-        lines.append(f"| {plain} | {_diff(col)} | {_diff(err)} | {_median(err)} "
-                     f"| {cpu_us[name] / cpu_us[plain]:.2f}x |")
+        median = diff_text(err.median_delta, err.median_ci, verdict=False)
+        lines.append(f"| {plain} | {diff_text(col.delta, col.ci)} | {diff_text(err.delta, err.ci)} "
+                     f"| {median} | {cpu_us[name] / cpu_us[plain]:.2f}x |")
     lines += ["", f"CPU per step: one thread, {len(seeds)} arms in one batch, the whole loop "
               "(controller, IK, physics, recording); a shared machine, so read the ratios."]
     table = "\n".join(lines) + "\n"
@@ -144,16 +146,6 @@ def main(args: Args) -> None:
         with atomic_write(seeds_file, ".txt") as tmp:
             Path(tmp).write_text("".join(f"{s}\n" for s in seeds))
     print(table)
-
-
-def _median(row) -> str:
-    lo, hi = row.median_ci
-    return f"{row.median_delta:+.2f} [{lo:+.2f}, {hi:+.2f}]"
-
-
-def _diff(row) -> str:
-    shown = "shown" if row.ci[0] > 0 or row.ci[1] < 0 else "not shown"
-    return f"{row.delta:+.2f} [{row.ci[0]:+.2f}, {row.ci[1]:+.2f}] {shown}"
 
 
 if __name__ == "__main__":

@@ -111,8 +111,9 @@ def main(args: Args) -> None:
 
 
 def _fmt(x: float, ci: tuple[float, float]) -> str:
-    shown = "shown" if ci[0] > 0 or ci[1] < 0 else "not shown"
-    return f"{x:+.2f} [{ci[0]:+.2f}, {ci[1]:+.2f}] {shown}"
+    from metrics import diff_text
+
+    return diff_text(x, ci)
 
 
 def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:

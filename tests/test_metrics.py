@@ -526,3 +526,19 @@ def test_a_bug_keeps_its_traceback(root, monkeypatch):
     with pytest.raises(SystemExit) as exc:  # a user error becomes exit status 2
         metrics.main(metrics.Args(root=root, prefix_a="nope", prefix_b="learned"))
     assert exc.value.code == 2
+
+
+def test_diff_text_is_the_claims_format():
+    assert metrics.diff_text(1.234, (0.5, 2.0)) == "+1.23 [+0.50, +2.00] shown"
+    assert metrics.diff_text(-0.05, (-0.22, 0.11)) == "-0.05 [-0.22, +0.11] not shown"
+    assert metrics.diff_text(0.12, (0.08, 0.17), verdict=False) == "+0.12 [+0.08, +0.17]"
+
+
+def test_sets_that_would_share_a_name_are_named_by_their_prefixes():
+    def one(controller):
+        return {0: offset_rollout(0.01, seed=0, shape="circle", controller=controller)}
+
+    labels = metrics.set_labels([one("classical"), one("policy"), one("policy")],
+                                ["ikpd", "v5", "v9"])
+    assert labels == ["Classical", "v5", "v9"]
+    assert metrics.set_labels([one("test"), one("test")], ["analytic", "mine"]) == ["Analytic", "mine"]
