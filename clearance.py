@@ -125,10 +125,9 @@ class Clearance:
         check = (np.linalg.norm(centre2 - centre1, axis=-1) - self._bound) < within
         i, k = np.nonzero(check)
         if i.size:
-            axis = self._geom_mat.reshape(n, -1, 3, 3)[i, :, :, 2]  # capsules' local z, (M, G, 3)
-            rows = np.arange(i.size)
-            half1 = axis[rows, g1[k]] * self._half[g1[k], None]
-            half2 = axis[rows, g2[k]] * self._half[g2[k], None]
+            mats = self._geom_mat.reshape(n, -1, 3, 3)
+            half1 = mats[i, g1[k], :, 2] * self._half[g1[k], None]  # each capsule's local z
+            half2 = mats[i, g2[k], :, 2] * self._half[g2[k], None]
             a, b = centre1[i, k], centre2[i, k]
             p, q = segment_closest_points(a - half1, a + half1, b - half2, b + half2)
             c1[i, k], c2[i, k] = p, q

@@ -134,6 +134,7 @@ class IKConfig:
             raise ValueError(f"IKConfig's clearance must be >= 0, and needs iters == 1: {self}")
 
 
+_STAGE_NONE = mujoco.mjtStage.mjSTAGE_NONE
 # Sensor layout (assets/scene.xml): self_contact (found, mindist), floor_contact (found).
 _SELF_FOUND, _SELF_DIST, _FLOOR_FOUND = 0, 1, 2
 _UNSTABLE_WARNINGS = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
@@ -189,6 +190,7 @@ class ArmBatch:
         self._clearance = (Clearance(m, b, N_JOINTS, ik.clearance) if ik.clearance > 0
                            else None)
         self._skew = np.zeros((n, 3, 3))  # cross-product matrices, rewritten every step
+        self._old_tip = np.zeros((n, 3))
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
         self.reset()
@@ -298,9 +300,10 @@ class ArmBatch:
         pass: `jac` at the old tip positions (it runs mj_kinematics and mj_comPos), then
         `forward(stage=NONE)`, which computes nothing but copies those kinematics into the bound
         tip position, then the Jacobian moved from the old point a to the new tip b."""
-        old_tip = self.tip_pos.copy()
+        old_tip = self._old_tip
+        np.copyto(old_tip, self.tip_pos)
         jacp, jacr = self.batch.jac(self._tip_body, old_tip)
-        self.batch.forward(stage=mujoco.mjtStage.mjSTAGE_NONE)
+        self.batch.forward(stage=_STAGE_NONE)
         # The velocity of point b on the tip body is v_a + w x (b - a): J_b = J_a - [b - a]x J_r.
         r = self.tip_pos - old_tip
         skew = self._skew
