@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -183,17 +185,36 @@ def test_model_card_snippet_reproduces_the_rollout(archived):
 
 # --- signals and resume ------------------------------------------------------------------------
 
-def _wait_for(proc, text: str, timeout: float = 180) -> list[str]:
-    """Read the child's stdout until a line contains ``text`` (the event, not a sleep)."""
-    seen, deadline = [], time.time() + timeout
-    while time.time() < deadline:
-        line = proc.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        if text in line:
-            return seen
-    raise AssertionError(f"never saw {text!r}: {''.join(seen)}")
+class _Lines:
+    """Every line of a child's pipe, read by a thread as it comes (so the pipe never fills
+    and a silent child cannot block the test)."""
+
+    def __init__(self, pipe):
+        self.lines: list[str] = []
+        self._new = queue.Queue()
+        self._thread = threading.Thread(target=self._read, args=(pipe,), daemon=True)
+        self._thread.start()
+
+    def _read(self, pipe):
+        for line in pipe:
+            self.lines.append(line)
+            self._new.put(line)
+
+    def wait_for(self, text: str, hang_guard: float = 600) -> None:
+        """Until a line contains ``text`` (the event; the guard only catches a hang)."""
+        deadline = time.monotonic() + hang_guard
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                if text in self._new.get(timeout=left):
+                    return
+            except queue.Empty:
+                break
+        raise AssertionError(f"never saw {text!r}: {''.join(self.lines)}")
+
+    def text(self) -> str:
+        """Everything, once the child has exited."""
+        self._thread.join(timeout=60)
+        return "".join(self.lines)
 
 
 @pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
@@ -202,16 +223,19 @@ def test_a_signal_to_the_main_process_alone_saves_and_resume_appends(tmp_path, s
            "--checkpoint-freq", "128", "--runs-dir", str(tmp_path / "runs"), *TINY]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True, env={**os.environ, "MUJOCO_GL": "egl"})
+    out_lines, err_lines = _Lines(proc.stdout), _Lines(proc.stderr)
     try:
-        _wait_for(proc, "training started")
+        out_lines.wait_for("training started")
         run_dir = next((tmp_path / "runs").iterdir())
         csv = run_dir / "tb" / "progress.csv"
-        deadline = time.time() + 180
-        while time.time() < deadline and not (csv.is_file() and len(csv.read_text().splitlines()) >= 3):
+        logged = lambda: csv.is_file() and len(csv.read_text().splitlines()) >= 3  # noqa: E731
+        deadline = time.monotonic() + 600  # a hang guard, not a time budget
+        while time.monotonic() < deadline and not logged():
             time.sleep(0.1)  # polling for the event: a couple of PPO iterations logged
-        assert csv.is_file() and len(csv.read_text().splitlines()) >= 3, "no PPO iteration logged"
+        assert logged(), "no PPO iteration logged"
         os.kill(proc.pid, sig)  # the main process only, not its group
-        out, err = proc.communicate(timeout=120)
+        proc.wait(timeout=600)  # a hang guard: it saves and exits within seconds
+        out, err = out_lines.text(), err_lines.text()
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
