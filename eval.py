@@ -12,7 +12,7 @@ The env is rebuilt from the model's sidecar, so any archived model runs on any s
 import os
 import sys
 
-from controller_cli import run_controller_cli
+from panda_lead.cli.run import run_controller_cli
 
 if __name__ == "__main__":
     run_controller_cli(default_controller="policy", default_prefix="eval", argv=sys.argv[1:],

@@ -10,8 +10,8 @@ training.py; nothing imports this script.
 
 import sys
 
-from errors import exit_on_user_error
-from training import parse_args, preset_table, train
+from panda_lead.errors import exit_on_user_error
+from panda_lead.training import parse_args, preset_table, train
 
 
 @exit_on_user_error

@@ -1,4 +1,4 @@
-"""Speed and memory figures: `uv run bench.py` (about 5 minutes on 2 cores).
+"""Speed and memory figures: `uv run studies/bench.py` (about 5 minutes on 2 cores).
 
 Every figure is the median of repeats. Printed as a markdown table with the machine, the date
 and the command, ready for the README. `--quick` shortens everything (for a smoke test).
@@ -6,20 +6,16 @@ and the command, ready for the README. `--quick` shortens everything (for a smok
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import os
 import platform
 import shlex
 import statistics
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import tyro
@@ -57,7 +53,7 @@ def bench_physics(n: int, repeats: int) -> float:
     MjData, the arm moving (a sinusoidal joint goal), as the envs do."""
     import mujoco
 
-    from core import home_qpos, load_model
+    from panda_lead.core import home_qpos, load_model
 
     m = load_model()
     d = mujoco.MjData(m)
@@ -78,7 +74,7 @@ def bench_single_env(n: int, repeats: int) -> float:
     """Microseconds per step through gymnasium.make (all wrappers), random actions."""
     import gymnasium as gym
 
-    import env  # noqa: F401
+    import panda_lead  # noqa: F401  (registers PandaLead-v0)
 
     e = gym.make("PandaLead-v0", episode_steps=n + 1, max_episode_steps=n + 1)
     actions = np.random.default_rng(0).uniform(-1, 1, (n, 3)).astype(np.float32)
@@ -97,8 +93,8 @@ def bench_batched(n_envs: int, threads: int, steps: int, repeats: int, **setting
     """(CPU us per env step, wall env steps/s) of the SB3 view of the batched env (what PPO
     steps: IK, physics, contacts, reward, observation, in-step resets), random actions;
     ``settings`` are EnvConfig fields."""
-    from env import EnvConfig
-    from vecenv import LeadVecEnv
+    from panda_lead.config import EnvConfig
+    from panda_lead.sb3_vecenv import LeadVecEnv
 
     vec = LeadVecEnv(EnvConfig(**settings), n_envs, nthread=threads)
     vec.seed(0)
@@ -118,7 +114,7 @@ def bench_batched(n_envs: int, threads: int, steps: int, repeats: int, **setting
 
 def bench_subproc(n_envs: int, seconds: float) -> float:
     """Env steps per second of SB3's SubprocVecEnv (a process per env), random actions."""
-    from training import make_vec_env
+    from panda_lead.training import make_vec_env
 
     vec = make_vec_env({}, n_envs, 0, "subproc")
     vec.reset()
@@ -136,7 +132,7 @@ def bench_subproc(n_envs: int, seconds: float) -> float:
 
 
 def reference() -> dict:
-    from training import REFERENCE_HPARAMS
+    from panda_lead.training import REFERENCE_HPARAMS
 
     return dict(REFERENCE_HPARAMS)
 
@@ -146,7 +142,7 @@ def bench_ppo(config: dict, iterations: int, torch_threads: int) -> float:
     import torch
     from stable_baselines3 import PPO
 
-    from training import make_vec_env
+    from panda_lead.training import make_vec_env
 
     torch.set_num_threads(torch_threads)
     vec = make_vec_env({}, config["n_envs"], 0, config["vec_env"], config.get("n_workers", 0))
@@ -196,7 +192,7 @@ def bench_memory(timesteps: int) -> tuple[float, float]:
 
 
 def repo_default() -> dict:
-    from training import TrainConfig
+    from panda_lead.training import TrainConfig
 
     a = TrainConfig()
     return dict(n_envs=a.n_envs, vec_env=a.vec_env, n_workers=a.n_workers, n_steps=a.n_steps,

@@ -15,19 +15,14 @@ with the collision-aware IK (``--env.ik-clearance``, clearance.py), and the firs
 
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import tyro
 
-from errors import UserError, exit_on_user_error
+from panda_lead.errors import UserError, exit_on_user_error
 
 
 @dataclass
@@ -45,10 +40,10 @@ class Args:
 def find_subset(chunk: int = 1000) -> list[int]:
     """Pool seeds whose classical rollout touches itself (in chunks: 10k rollouts at once
     would hold 1.6 GB)."""
-    import controllers
-    from env import EnvConfig
-    from rollout import record_many
-    from seeds import POOL_SEEDS
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig
+    from panda_lead.rollout import record_many
+    from panda_lead.seeds import POOL_SEEDS
 
     config = EnvConfig(episode_steps=500, terminate_on_collision=False)
     found = []
@@ -63,12 +58,12 @@ def find_subset(chunk: int = 1000) -> list[int]:
 
 @exit_on_user_error
 def main(args: Args) -> None:
-    import controllers
-    from atomicio import atomic_write
-    from env import EnvConfig
-    from metrics import compare, diff_text
-    from models import load_policy
-    from rollout import record_many
+    from panda_lead import controllers
+    from panda_lead.atomicio import atomic_write
+    from panda_lead.config import EnvConfig
+    from panda_lead.metrics import compare, diff_text
+    from panda_lead.models import load_policy
+    from panda_lead.rollout import record_many
 
     if not args.models:
         raise UserError("name at least one --models archive/NAME.zip")

@@ -17,19 +17,14 @@ latency.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import tyro
 
-from errors import UserError, exit_on_user_error
+from panda_lead.errors import UserError, exit_on_user_error
 
 
 @dataclass
@@ -62,8 +57,8 @@ def condition(question: str, level: float) -> dict:
 
 def controllers_for(models: list[Path]) -> dict[str, tuple]:
     """label -> (act_fn, base env settings) for classical, analytic and each model."""
-    import controllers
-    from models import load_policy
+    from panda_lead import controllers
+    from panda_lead.models import load_policy
 
     out = {"Classical": (controllers.classical, {}), "Analytic": (controllers.make_analytic(), {})}
     for path in models:
@@ -73,8 +68,8 @@ def controllers_for(models: list[Path]) -> dict[str, tuple]:
 
 
 def play(act, base: dict, extra: dict, seeds: list[int]) -> dict:
-    from env import EnvConfig
-    from rollout import record_many
+    from panda_lead.config import EnvConfig
+    from panda_lead.rollout import record_many
 
     config = EnvConfig.from_dict({**base, **extra, "episode_steps": 500})
     return {r.seed: r for r in record_many(config, act, seeds)}
@@ -82,8 +77,8 @@ def play(act, base: dict, extra: dict, seeds: list[int]) -> dict:
 
 @exit_on_user_error
 def main(args: Args) -> None:
-    from metrics import compare  # the paired statistics live in metrics.py
-    from seeds import parse_seed_range
+    from panda_lead.metrics import compare
+    from panda_lead.seeds import parse_seed_range
 
     levels = args.levels or ([0, 0.5, 1, 2] if args.question == "noise" else [0, 1, 2, 3])
     seeds = parse_seed_range(args.seeds)
@@ -111,7 +106,7 @@ def main(args: Args) -> None:
 
 
 def _fmt(x: float, ci: tuple[float, float]) -> str:
-    from metrics import diff_text
+    from panda_lead.metrics import diff_text
 
     return diff_text(x, ci)
 
@@ -137,9 +132,9 @@ def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:
 
 
 def _figure(args: Args, curves: dict, unit: str, seeds: list[int]) -> None:
-    from metrics import _pyplot, _save, colours_for
+    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_e, ax_j) = plt.subplots(1, 2, figsize=(12, 4.5))
     colours = colours_for(list(curves))
     for name, pts in curves.items():
@@ -153,7 +148,7 @@ def _figure(args: Args, curves: dict, unit: str, seeds: list[int]) -> None:
     ax_e.legend()
     fig.suptitle(f"{args.question}: test seeds {seeds[0]}-{seeds[-1]}, n={len(seeds)} per point")
     fig.tight_layout()
-    _save(fig, args.out / f"{args.question}.png")
+    save_figure(fig, args.out / f"{args.question}.png")
 
 
 if __name__ == "__main__":

@@ -12,10 +12,6 @@ those drive the arm hardest into itself and the floor.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import time
 import traceback
 from dataclasses import dataclass
@@ -42,12 +38,12 @@ class Args:
 
 
 def soak(args: Args) -> dict:
-    import env as env_mod  # noqa: F401  (registers PandaLead-v0)
+    from panda_lead.config import OBS_FEATURES
 
     n = args.envs
     vec = gym.make_vec("PandaLead-v0", num_envs=n, num_threads=args.workers,
                        episode_steps=args.episode_steps, max_lead=args.max_lead,
-                       obs_features=tuple(env_mod.OBS_FEATURES))
+                       obs_features=tuple(OBS_FEATURES))
     rng = np.random.default_rng(args.seed)
     stats = dict(steps=0, episodes=0, nans=0, exceptions=0, warnings=0, unstable=0,
                  collision_steps=0, floor_steps=0, shapes={}, errors=[])

@@ -10,18 +10,13 @@ training seeds, which is the spread a single-seed result hides.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import tyro
 
-from errors import exit_on_user_error
+from panda_lead.errors import exit_on_user_error
 
 
 @dataclass
@@ -57,7 +52,7 @@ def run_table(runs: list[Path], margin_cm: float) -> None:
 
 @exit_on_user_error
 def main(args: Args) -> None:
-    from metrics import compare, load_set
+    from panda_lead.metrics import compare, load_set
 
     if args.runs:
         run_table(args.runs, args.margin_cm)

@@ -21,22 +21,18 @@ command continues the study where it stopped.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import math
 import os
 import shlex
 import subprocess
+import sys
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import tyro
 
-from errors import UserError, exit_on_user_error
+from panda_lead.errors import UserError, exit_on_user_error
 
 SWEEPS_DIR = Path("sweeps")
 
@@ -209,7 +205,7 @@ def suggest(trial, args: Args) -> tuple[list[str], dict]:
 def objective(trial, args: Args) -> float:
     import optuna
 
-    import training
+    from panda_lead import training
 
     flags, params = suggest(trial, args)
     run_root = SWEEPS_DIR / args.name / "runs"
@@ -351,7 +347,7 @@ def archive(args: Args, name: str) -> None:
 
     import optuna
 
-    import training
+    from panda_lead import training
 
     try:
         study = optuna.load_study(study_name=name, storage=storage_for(args, name))
@@ -385,7 +381,7 @@ def main() -> None:
     elif args.worker_id >= 0:
         work(args)
     else:
-        from training import get_preset
+        from panda_lead.training import get_preset
 
         try:
             for p in args.presets:

@@ -8,12 +8,6 @@ controllers.DEFAULT_TAU (0.04 s), which the analytic baseline uses everywhere.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,10 +23,10 @@ class Args:
 
 
 def main(args: Args) -> None:
-    import controllers
-    from env import EnvConfig
-    from rollout import record_many
-    from seeds import TUNE_SEEDS
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig
+    from panda_lead.rollout import record_many
+    from panda_lead.seeds import TUNE_SEEDS
 
     config = EnvConfig(episode_steps=int(round(args.duration * 100)))
     print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")

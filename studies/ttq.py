@@ -1,6 +1,6 @@
 """Time-to-quality study: wall-clock until a policy beats the classical controller by a margin.
 
-    uv run ttq.py --seeds 1 2 --margin-cm 1.5
+    uv run studies/ttq.py --seeds 1 2 --margin-cm 1.5
 
 Each candidate configuration trains with `train.py --stop-below-cm T` where T is the classical
 controller's evaluation-set mean error minus the margin; the figure is the wall time (and env
@@ -10,20 +10,17 @@ itself. Only the evaluation set is used (never the test seeds).
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-# Studies import the pipeline, which lives at the repo root (nothing imports a study).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-TRAIN_PY = Path(__file__).resolve().parents[1] / "train.py"
-
 import csv
 import statistics
 import subprocess
+import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import tyro
+
+TRAIN_PY = Path(__file__).resolve().parents[1] / "train.py"
 
 # Every candidate names its curriculum explicitly (train.py's default has one since this study).
 _NO_CURRICULUM = ["--curriculum-steps", "0"]
@@ -67,8 +64,8 @@ class Args:
 
 
 def classical_eval_error() -> float:
-    from controllers import classical
-    from training import evaluate
+    from panda_lead.controllers import classical
+    from panda_lead.training import evaluate
 
     return evaluate(classical, {}, 500)["mean_error_cm"]
 

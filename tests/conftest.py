@@ -7,12 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
 # MuJoCo picks its GL platform once, when it is first imported; core.py chooses EGL on a
 # headless machine. Import it before any test module imports mujoco itself, so a render test
 # works whichever test files run before it (test_core imports mujoco first).
-import core  # noqa: E402, F401
+from panda_lead import core  # noqa: F401
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def run_script(script, *args, cwd=None, env=None, check=False, **kwargs) -> subprocess.CompletedProcess:

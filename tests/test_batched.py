@@ -5,11 +5,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import env as env_mod
-import trajectory
-from controllers import classical, make_analytic, make_policy
-from rollout import ARRAY_KEYS, record, record_many
-from seeds import EVAL_SET, POOL_SEEDS, TEST_SEEDS, TRAIN_SEED_LOW, TUNE_SEEDS
+from panda_lead import trajectory
+from panda_lead.config import OBS_FEATURES, EnvConfig
+from panda_lead.controllers import classical, make_analytic, make_policy
+from panda_lead.env import PandaLeadEnv
+from panda_lead.rollout import ARRAY_KEYS, record, record_many
+from panda_lead.seeds import EVAL_SET, POOL_SEEDS, TEST_SEEDS, TRAIN_SEED_LOW, TUNE_SEEDS
+from panda_lead.vector import PandaLeadVecEnv
 
 STEPS = 60
 # 24 trajectory seeds, 8 of each shape (the seed draws the shape; we pick seeds so each shape is
@@ -69,30 +71,30 @@ def _assert_same_rollouts(batch, alone):
 def policy():
     from stable_baselines3 import PPO
 
-    e = env_mod.PandaLeadEnv(obs_features=env_mod.OBS_FEATURES)
+    e = PandaLeadEnv(obs_features=OBS_FEATURES)
     model = PPO("MlpPolicy", e, seed=0, device="cpu", policy_kwargs=dict(net_arch=[64, 64]))
     return model
 
 
 @pytest.mark.parametrize("controller", ["classical", "analytic", "policy"])
 def test_batched_rollouts_equal_one_at_a_time(controller, policy):
-    config = env_mod.EnvConfig(episode_steps=STEPS, obs_features=env_mod.OBS_FEATURES,
+    config = EnvConfig(episode_steps=STEPS, obs_features=OBS_FEATURES,
                                obs_noise={"target_vel": 0.05, "ee_pos": 0.002})
     act = {"classical": classical, "analytic": make_analytic(),
            "policy": make_policy(policy)}[controller]
     seeds, shapes = SEEDS[::2], SHAPES[::2]
     batch = record_many(config, act, seeds, shapes, batch_size=5)  # uneven chunks on purpose
-    single = env_mod.PandaLeadEnv(config)
+    single = PandaLeadEnv(config)
     alone = [record(single, act, s, sh) for s, sh in zip(seeds, shapes, strict=True)]
     _assert_same_rollouts(batch, alone)
     assert len({r.shape for r in batch}) == 3
 
 
 def test_zero_action_rollout_is_the_classical_core():
-    from core import ArmBatch
+    from panda_lead.core import ArmBatch
 
     seeds = SEEDS[::4]
-    rollouts = record_many(env_mod.EnvConfig(episode_steps=STEPS), classical, seeds)
+    rollouts = record_many(EnvConfig(episode_steps=STEPS), classical, seeds)
     arms = ArmBatch(len(seeds), nthread=1)
     arms.reset(trajs=[trajectory.sample(s) for s in seeds], n_steps=STEPS)
     for t in range(STEPS):
@@ -103,13 +105,13 @@ def test_zero_action_rollout_is_the_classical_core():
 
 
 def test_sb3_vec_env_matches_gymnasium_vector_env_and_resets_in_step():
-    from vecenv import LeadVecEnv
+    from panda_lead.sb3_vecenv import LeadVecEnv
 
     n, steps = 4, 30
-    config = env_mod.EnvConfig(episode_steps=steps)
+    config = EnvConfig(episode_steps=steps)
     sb3 = LeadVecEnv(config, n, nthread=1)
     sb3.seed(5)
-    gv = env_mod.PandaLeadVecEnv(n, config)
+    gv = PandaLeadVecEnv(n, config)
     obs_a = sb3.reset()
     obs_b, _ = gv.reset(seed=5)
     np.testing.assert_array_equal(obs_a, obs_b)
@@ -131,9 +133,9 @@ def test_sb3_vec_env_matches_gymnasium_vector_env_and_resets_in_step():
 
 
 def _training_trajectories(seed: int, count: int, n_envs: int = 32) -> list[int]:
-    from vecenv import LeadVecEnv
+    from panda_lead.sb3_vecenv import LeadVecEnv
 
-    vec = LeadVecEnv(env_mod.EnvConfig(episode_steps=1), n_envs, nthread=1)
+    vec = LeadVecEnv(EnvConfig(episode_steps=1), n_envs, nthread=1)
     vec.seed(seed)
     vec.reset()
     drawn = list(vec.task.traj_seeds)

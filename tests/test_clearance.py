@@ -7,12 +7,11 @@ import mujoco.batch
 import numpy as np
 import pytest
 
-import clearance
-import controllers
-from core import N_JOINTS, ArmBatch, IKConfig, load_model
-from env import EnvConfig
-from errors import UserError
-from rollout import record_many
+from panda_lead import clearance, controllers
+from panda_lead.config import EnvConfig
+from panda_lead.core import N_JOINTS, ArmBatch, IKConfig, load_model
+from panda_lead.errors import UserError
+from panda_lead.rollout import record_many
 
 
 def _random_arms(n, seed=0):

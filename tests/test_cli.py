@@ -69,7 +69,7 @@ def test_archived_model_loads_and_runs_on_seeds(trained):
     assert out.returncode == 0, out.stderr
     files = sorted((tmp / "rollouts" / "tiny").glob("seed_*.npz"))
     assert [f.name for f in files] == ["seed_0000.npz", "seed_0001.npz"]
-    from rollout import load
+    from panda_lead.rollout import load
 
     r = load(files[0])
     assert r.meta["controller"] == "policy" and r.meta["model"].endswith("tiny.zip")
@@ -81,7 +81,7 @@ def test_ikpd_writes_rollouts_and_prints_errors(tmp_path):
               cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert "seed    3" in out.stdout and "cm" in out.stdout
-    from rollout import load
+    from panda_lead.rollout import load
 
     r = load(tmp_path / "rollouts" / "ikpd" / "seed_0003.npz")
     assert r.meta["controller"] == "classical" and np.all(r.lead == 0)
@@ -91,7 +91,7 @@ def test_analytic_controller_uses_a_nonzero_lead(tmp_path):
     out = run(ROOT / "ikpd.py", "--seeds", "5", "--prefix", "an", "--controller", "analytic",
               "--tau", "0.05", "--duration", "0.5", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    from rollout import load
+    from panda_lead.rollout import load
 
     r = load(tmp_path / "rollouts" / "an" / "seed_0005.npz")
     assert np.abs(r.lead).max() > 0 and r.meta["tau"] == 0.05
@@ -126,7 +126,7 @@ def test_typed_env_flags_apply_over_the_models_sidecar(tmp_path):
               "--controller", "analytic", "--env.obs-noise", "target_vel", "0.05",
               "--env.max-lead", "0.1", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    from rollout import load
+    from panda_lead.rollout import load
 
     r = load(tmp_path / "rollouts" / "n" / "seed_0001.npz")
     assert r.meta["env"]["obs_noise"] == {"target_vel": 0.05} and r.meta["env"]["max_lead"] == 0.1

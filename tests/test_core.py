@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from core import N_JOINTS, ArmBatch, home_qpos, load_model, reachable
+from panda_lead.core import N_JOINTS, ArmBatch, home_qpos, load_model, reachable
 
 HOME_QPOS = home_qpos()
 

@@ -6,11 +6,21 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import env as env_mod
-import trajectory
-from core import ArmBatch
-from errors import UserError
-from rollout import record
+from panda_lead import trajectory
+from panda_lead.config import (
+    OBS_FEATURES,
+    OBS_SCALE,
+    REWARD_TERMS,
+    EnvConfig,
+    arguments_table,
+    config_docs,
+)
+from panda_lead.core import ArmBatch
+from panda_lead.env import PandaLeadEnv
+from panda_lead.errors import UserError
+from panda_lead.rollout import record
+from panda_lead.task import LeadTask
+from panda_lead.vector import PandaLeadVecEnv
 
 
 def test_registered_and_passes_gymnasium_and_sb3_checkers():
@@ -30,7 +40,7 @@ def test_registered_and_passes_gymnasium_and_sb3_checkers():
 
 def test_zero_action_reproduces_the_classical_core_exactly():
     seed, steps = 11, 150
-    e = env_mod.PandaLeadEnv(episode_steps=steps)
+    e = PandaLeadEnv(episode_steps=steps)
     e.reset(seed=0, options={"traj_seed": seed})
     core = ArmBatch(1, nthread=1)
     core.reset(trajs=[trajectory.sample(seed)], n_steps=steps)
@@ -45,7 +55,7 @@ def test_zero_action_reproduces_the_classical_core_exactly():
 def test_reward_terms_add_up_and_are_weighted():
     kw = dict(w_distance=1.3, w_tracking=0.7, tracking_scale=0.04, w_action=0.2,
               w_action_change=0.1, w_collision=50.0, w_alive=0.05, w_termination=3.0)
-    e = env_mod.PandaLeadEnv(episode_steps=60, **kw)
+    e = PandaLeadEnv(episode_steps=60, **kw)
     e.reset(seed=3, options={"traj_seed": 5})
     rng = np.random.default_rng(0)
     prev = np.zeros(3)
@@ -53,7 +63,7 @@ def test_reward_terms_add_up_and_are_weighted():
         a = rng.uniform(-1, 1, 3).astype(np.float32)
         _, reward, term, trunc, info = e.step(a)
         terms = info["reward_terms"]
-        assert set(terms) == set(env_mod.REWARD_TERMS)
+        assert set(terms) == set(REWARD_TERMS)
         assert reward == pytest.approx(sum(terms.values()), abs=1e-12)
         d = info["distance"]
         assert terms["distance"] == pytest.approx(-1.3 * d)
@@ -69,7 +79,7 @@ def test_reward_terms_add_up_and_are_weighted():
 
 
 def test_observation_layout_follows_the_feature_order():
-    e = env_mod.PandaLeadEnv(obs_features=("target_acc", "ee_pos", "prev_action"))
+    e = PandaLeadEnv(obs_features=("target_acc", "ee_pos", "prev_action"))
     assert [f for f, _, _ in e._layout] == ["ee_pos", "target_acc", "prev_action"]
     obs, _ = e.reset(seed=0, options={"traj_seed": 2})
     assert obs.shape == (9,) and obs.dtype == np.float32
@@ -77,11 +87,11 @@ def test_observation_layout_follows_the_feature_order():
     obs, *_ = e.step(np.array([0.5, -0.5, 1.0], dtype=np.float32))
     np.testing.assert_allclose(obs[6:9], [0.5, -0.5, 1.0])
     acc = e.core.target()[2][0]
-    np.testing.assert_allclose(obs[3:6], acc / env_mod.OBS_SCALE["target_acc"], rtol=1e-6)
+    np.testing.assert_allclose(obs[3:6], acc / OBS_SCALE["target_acc"], rtol=1e-6)
 
 
 def test_lead_is_scaled_and_clipped():
-    e = env_mod.PandaLeadEnv(max_lead=0.1)
+    e = PandaLeadEnv(max_lead=0.1)
     e.reset(seed=0, options={"traj_seed": 1})
     *_, info = e.step(np.array([2.0, -0.5, 0.0], dtype=np.float32))
     np.testing.assert_allclose(info["lead"], [0.1, -0.05, 0.0])
@@ -89,23 +99,23 @@ def test_lead_is_scaled_and_clipped():
 
 def test_bad_inputs_raise_clear_errors():
     with pytest.raises(UserError, match="did you mean 'target_acc'"):
-        env_mod.PandaLeadEnv(obs_features=("target_ac",))
+        PandaLeadEnv(obs_features=("target_ac",))
     with pytest.raises(UserError, match="did you mean 'circle'"):
-        env_mod.PandaLeadEnv(shapes=("circel",))
+        PandaLeadEnv(shapes=("circel",))
     with pytest.raises(UserError, match="did you mean 'max_lead'"):
-        env_mod.PandaLeadEnv(max_leed=0.1)
+        PandaLeadEnv(max_leed=0.1)
     for bad in (dict(ik_iters=0), dict(tracking_scale=0.0), dict(max_lead=float("nan")),
                 dict(obs_noise={"ee_pos": float("nan")}), dict(episode_steps=1.5)):
         with pytest.raises(UserError):
-            env_mod.PandaLeadEnv(**bad)
-    e = env_mod.PandaLeadEnv()
+            PandaLeadEnv(**bad)
+    e = PandaLeadEnv()
     e.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
         e.step(np.array([np.nan, 0, 0], dtype=np.float32))
 
 
 def test_same_seed_same_episode_and_reset_restores_everything():
-    e = env_mod.PandaLeadEnv(episode_steps=80, obs_features=env_mod.OBS_FEATURES,
+    e = PandaLeadEnv(episode_steps=80, obs_features=OBS_FEATURES,
                              obs_noise={"ee_pos": 0.01})
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (80, 3)).astype(np.float32)
@@ -127,7 +137,7 @@ def test_same_seed_same_episode_and_reset_restores_everything():
 
 
 def test_training_shapes_are_respected():
-    e = env_mod.PandaLeadEnv(shapes=("circle",))
+    e = PandaLeadEnv(shapes=("circle",))
     e.reset(seed=0)
     shapes = set()
     for _ in range(10):
@@ -148,7 +158,7 @@ def test_terminates_on_self_collision_only_when_asked():
                 break
         return hit
 
-    on = env_mod.PandaLeadEnv(max_lead=1.0, terminate_on_collision=True, w_termination=5.0)
+    on = PandaLeadEnv(max_lead=1.0, terminate_on_collision=True, w_termination=5.0)
     on.reset(seed=0, options={"traj_seed": 4})
     hit = fold(on)
     assert hit is not None, "the arm never folded into itself"
@@ -158,7 +168,7 @@ def test_terminates_on_self_collision_only_when_asked():
 
 
 def test_record_writes_one_row_per_step():
-    e = env_mod.PandaLeadEnv(episode_steps=50)
+    e = PandaLeadEnv(episode_steps=50)
     r = record(e, lambda obs, task: np.zeros((len(obs), 3), np.float32), traj_seed=8)
     assert len(r.t) == 50 and r.ee_pos.shape == (50, 3) and r.qpos.shape == (50, 7)
     np.testing.assert_allclose(r.t, np.arange(1, 51) * 0.01)
@@ -167,9 +177,9 @@ def test_record_writes_one_row_per_step():
 
 
 def test_evaluate_groups_drawn_shapes_by_the_shape_played():
-    import trajectory
-    from controllers import classical
-    from training import evaluate
+    from panda_lead import trajectory
+    from panda_lead.controllers import classical
+    from panda_lead.training import evaluate
 
     res = evaluate(classical, {}, 20, episodes=[(0, None), (1, None), (2, "fly")])
     played = {trajectory.sample(0).shape, trajectory.sample(1).shape, "fly"}
@@ -179,27 +189,39 @@ def test_evaluate_groups_drawn_shapes_by_the_shape_played():
 def test_arguments_table_in_the_docstring_is_the_config():
     import dataclasses
 
-    doc = env_mod.PandaLeadEnv.__doc__
-    defaults = env_mod.EnvConfig()
-    for f in dataclasses.fields(env_mod.EnvConfig):
+    doc = PandaLeadEnv.__doc__
+    defaults = EnvConfig()
+    for f in dataclasses.fields(EnvConfig):
         row = next(line for line in doc.splitlines() if line.strip().startswith(f"| {f.name} |"))
         assert repr(getattr(defaults, f.name)) in row
-        assert env_mod.config_docs()[f.name], f"{f.name} has no one-line docstring"
+        assert config_docs()[f.name], f"{f.name} has no one-line docstring"
 
 
 def test_config_round_trips_through_its_dict():
-    c = env_mod.EnvConfig(obs_features=("target_vel", "ee_pos"), shapes=("fly",),
+    c = EnvConfig(obs_features=("target_vel", "ee_pos"), shapes=("fly",),
                           obs_noise={"ee_pos": 0.01}, max_lead=0.1)
     assert c.obs_features == ("ee_pos", "target_vel")  # canonical order
-    assert env_mod.EnvConfig.from_dict(c.to_dict()) == c
-    assert env_mod.PandaLeadEnv(c).cfg == c == env_mod.PandaLeadEnv(**c.to_dict()).cfg
+    assert EnvConfig.from_dict(c.to_dict()) == c
+    assert PandaLeadEnv(c).cfg == c == PandaLeadEnv(**c.to_dict()).cfg
 
 
-def test_registered_time_limit_and_vector_entry_point():
-    spec = gym.spec("PandaLead-v0")
-    assert spec.max_episode_steps == env_mod.EnvConfig().episode_steps
+def test_episode_length_has_one_home_whichever_way_the_env_is_made():
+    assert gym.make("PandaLead-v0").spec.max_episode_steps == EnvConfig().episode_steps
+    single = gym.make("panda_lead/PandaLead-v0", episode_steps=7)
+    vec = gym.make_vec("PandaLead-v0", num_envs=2, episode_steps=7)
+    assert single.spec.max_episode_steps == 7
+    single.reset(seed=0)
+    vec.reset(seed=0)
+    a = np.zeros(3, np.float32)
+    ends_single = [single.step(a)[3] for _ in range(7)]
+    ends_vec = [vec.step(np.zeros((2, 3), np.float32))[3] for _ in range(7)]
+    assert ends_single == [False] * 6 + [True]  # 7 steps, not the default 200
+    assert [bool(e.all()) for e in ends_vec] == [False] * 6 + [True]
+
+
+def test_vector_entry_point():
     v = gym.make_vec("PandaLead-v0", num_envs=3)
-    assert isinstance(v.unwrapped, env_mod.PandaLeadVecEnv) and v.num_envs == 3
+    assert isinstance(v.unwrapped, PandaLeadVecEnv) and v.num_envs == 3
     obs, info = v.reset(seed=0)
     assert obs.shape == (3, 15) and obs.dtype == np.float32 and len(set(info["traj_seed"])) == 3
     v.close()
@@ -209,8 +231,8 @@ def test_registered_time_limit_and_vector_entry_point():
 def test_observation_delay_shows_the_state_of_k_steps_ago(k):
     rng = np.random.default_rng(k)
     actions = rng.uniform(-1, 1, (40, 3)).astype(np.float32)
-    now = env_mod.PandaLeadEnv(episode_steps=40)
-    late = env_mod.PandaLeadEnv(episode_steps=40, obs_delay=k)
+    now = PandaLeadEnv(episode_steps=40)
+    late = PandaLeadEnv(episode_steps=40, obs_delay=k)
     seen_now = [now.reset(seed=1, options={"traj_seed": 5})[0]]
     seen_late = [late.reset(seed=1, options={"traj_seed": 5})[0]]
     for a in actions:
@@ -227,8 +249,8 @@ def test_action_delay_applies_the_action_of_k_steps_ago(k):
     rng = np.random.default_rng(10 + k)
     actions = rng.uniform(-1, 1, (40, 3)).astype(np.float32)
     shifted = np.concatenate([np.zeros((k, 3), np.float32), actions[:-k]])
-    late = env_mod.PandaLeadEnv(episode_steps=40, action_delay=k)
-    ref = env_mod.PandaLeadEnv(episode_steps=40)
+    late = PandaLeadEnv(episode_steps=40, action_delay=k)
+    ref = PandaLeadEnv(episode_steps=40)
     late.reset(seed=0, options={"traj_seed": 9})
     ref.reset(seed=0, options={"traj_seed": 9})
     for a, b in zip(actions, shifted, strict=True):
@@ -239,23 +261,23 @@ def test_action_delay_applies_the_action_of_k_steps_ago(k):
 
 
 def test_random_delays_are_drawn_per_episode_and_reproducible():
-    from controllers import make_analytic
-    from rollout import record, record_many
+    from panda_lead.controllers import make_analytic
+    from panda_lead.rollout import record, record_many
 
-    config = env_mod.EnvConfig(episode_steps=30, obs_delay=3, action_delay=3, random_delay=True)
+    config = EnvConfig(episode_steps=30, obs_delay=3, action_delay=3, random_delay=True)
     batch = record_many(config, make_analytic(), range(12))
-    single = env_mod.PandaLeadEnv(config)
+    single = PandaLeadEnv(config)
     for r in batch[:4]:
         assert np.array_equal(r.ee_pos, record(single, make_analytic(), r.seed).ee_pos)
-    task = env_mod.LeadTask(config, 64, nthread=1)
+    task = LeadTask(config, 64, nthread=1)
     task.rngs = [np.random.default_rng(s) for s in range(64)]
     task.reset()
     assert set(task.obs_delay) == {0, 1, 2, 3} and set(task.action_delay) == {0, 1, 2, 3}
 
 
 def test_speed_cap_filters_training_draws_only():
-    config = env_mod.EnvConfig(max_peak_speed=1.0)
-    task = env_mod.LeadTask(config, 32, nthread=1)
+    config = EnvConfig(max_peak_speed=1.0)
+    task = LeadTask(config, 32, nthread=1)
     task.rngs = [np.random.default_rng(s) for s in range(32)]
     task.reset()
     assert max(t.peak_speed for t in task.trajs) <= 1.0
@@ -263,11 +285,11 @@ def test_speed_cap_filters_training_draws_only():
     task.reset([0], [fast])  # a named (test) seed is played as it is
     assert task.trajs[0].peak_speed > 1.5
     with pytest.raises(UserError):
-        env_mod.EnvConfig(max_peak_speed=0.1)
+        EnvConfig(max_peak_speed=0.1)
 
 
 def test_speed_curriculum_raises_the_cap_linearly_then_lifts_it():
-    import training
+    from panda_lead import training
 
     assert training.speed_cap(0, 0.8, 1000) == pytest.approx(0.8)
     assert training.speed_cap(500, 0.8, 1000) == pytest.approx(0.8 + (trajectory.MAX_SPEED - 0.8) / 2)
@@ -286,9 +308,9 @@ def test_speed_curriculum_raises_the_cap_linearly_then_lifts_it():
 def test_speed_curriculum_reaches_sb3s_own_vec_envs():
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
-    import training
+    from panda_lead import training
 
-    vec = VecMonitor(DummyVecEnv([lambda: env_mod.PandaLeadEnv(episode_steps=5)] * 2))
+    vec = VecMonitor(DummyVecEnv([lambda: PandaLeadEnv(episode_steps=5)] * 2))
     callback = training.SpeedCurriculum(vec, 0.6, 1000)
     callback.init_callback(type("Model", (), {"num_timesteps": 0, "logger": _NullLogger(),
                                               "get_env": lambda self: vec})())
@@ -298,9 +320,9 @@ def test_speed_curriculum_reaches_sb3s_own_vec_envs():
     callback.on_rollout_start()
     assert [e.task.speed_cap for e in vec.venv.envs] == [None, None]
     # The batched env takes the same call, for all its envs at once (and only so).
-    from vecenv import LeadVecEnv
+    from panda_lead.sb3_vecenv import LeadVecEnv
 
-    batched = VecMonitor(LeadVecEnv(env_mod.EnvConfig(episode_steps=5), 3, nthread=1))
+    batched = VecMonitor(LeadVecEnv(EnvConfig(episode_steps=5), 3, nthread=1))
     callback = training.SpeedCurriculum(batched, 0.6, 1000)
     callback.init_callback(type("Model", (), {"num_timesteps": 0, "logger": _NullLogger(),
                                               "get_env": lambda self: batched})())
@@ -318,7 +340,7 @@ class _NullLogger:
 
 
 def test_joint_residual_action_moves_the_joint_goal_and_zero_is_classical():
-    e = env_mod.PandaLeadEnv(action="joint", episode_steps=30)
+    e = PandaLeadEnv(action="joint", episode_steps=30)
     assert e.action_space.shape == (7,)
     ref = ArmBatch(1, nthread=1)
     ref.reset(trajs=[trajectory.sample(4)], n_steps=30)
@@ -331,11 +353,11 @@ def test_joint_residual_action_moves_the_joint_goal_and_zero_is_classical():
     e.step(np.array([1, 0, 0, 0, 0, 0, -1], np.float32))
     np.testing.assert_allclose(e.core.q_goal[0] - goal[0], [0.2, 0, 0, 0, 0, 0, -0.2], atol=1e-12)
     with pytest.raises(UserError):
-        env_mod.EnvConfig(action="joint", obs_features=("ee_pos", "prev_action"))
+        EnvConfig(action="joint", obs_features=("ee_pos", "prev_action"))
 
 
 def test_the_env_page_documents_every_setting():
     from pathlib import Path
 
     page = (Path(__file__).resolve().parents[1] / "docs" / "env.md").read_text()
-    assert env_mod.arguments_table() in page
+    assert arguments_table() in page

@@ -14,10 +14,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_policy_beats_classical_on_circles_within_a_small_budget(tmp_path):
     import json
 
-    from controllers import classical, make_policy
-    from models import load_policy
-    from seeds import EVAL_SET
-    from training import evaluate
+    from panda_lead.controllers import classical, make_policy
+    from panda_lead.models import load_policy
+    from panda_lead.seeds import EVAL_SET
+    from panda_lead.training import evaluate
 
     cmd = [sys.executable, str(ROOT / "train.py"), "--preset", "v1", "--timesteps", "150000",
            "--n-envs", "16", "--vec-env", "dummy", "--n-steps", "256", "--batch-size", "1024",

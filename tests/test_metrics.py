@@ -12,13 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from panda_lead import metrics, rollout
+from panda_lead.cli import metrics as metrics_cli
+from panda_lead.errors import UserError
+from panda_lead.metrics import pairing as compare_module
+from panda_lead.metrics import figures
+from panda_lead.rollout import Rollout
 
-import metrics  # noqa: E402
-import rollout  # noqa: E402
-from errors import UserError  # noqa: E402
-from rollout import Rollout  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 DT = 0.01
 
@@ -337,10 +338,10 @@ def test_non_finite_or_non_positive_options_are_refused(kw):
 
 
 def test_seed_set_titles_and_colours():
-    assert metrics._seed_list([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
+    assert metrics.seed_ranges([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
     assert metrics.seed_set_title(list(range(1000))) == "test seeds 0-999, n=1000 pairs"
-    c = metrics.colours_for(["RL+Lead", "Classical", "Mine", "Yours"])
-    assert c["Classical"] == metrics.colours_for(["Classical"])["Classical"]
+    c = figures.colours_for(["RL+Lead", "Classical", "Mine", "Yours"])
+    assert c["Classical"] == figures.colours_for(["Classical"])["Classical"]
     assert len(set(c.values())) == 4  # every label its own colour
 
 
@@ -355,7 +356,7 @@ def test_paired_difference_plot_is_a_distribution_at_n_1000():
     a, b = offsets_sets(0.05 + 0 * offsets, offsets, T=20)
     cmp = metrics.compare(a, b, n_boot=100)
     fig, ax = plt.subplots()
-    metrics.plot_paired_differences(ax, cmp, "C2")
+    figures.plot_paired_differences(ax, cmp, "C2")
     assert len(ax.patches) <= 60  # histogram bins, not 1000 bars
     assert any(list(ln.get_xdata()) == [0, 0] for ln in ax.get_lines())  # zero marked
     legend = " ".join(t.get_text() for t in ax.get_legend().get_texts())
@@ -377,7 +378,7 @@ def test_error_over_time_axis_is_not_set_by_the_start_up_transient():
     sets = {"Classical": {s: transient(s, 0.03) for s in range(30)},
             "Analytic": {s: transient(s, 0.02) for s in range(30)}}
     fig, ax = plt.subplots()
-    metrics.plot_error_over_time(ax, sets, list(range(30)), metrics.colours_for(sets), 0.5,
+    figures.plot_error_over_time(ax, sets, list(range(30)), figures.colours_for(sets), 0.5,
                                  (5.0, 2.0))
     lo, hi = ax.get_ylim()
     assert lo == 0 and 3.0 < hi < 10.0  # the 3 cm settled error is visible, 50 cm is clipped
@@ -412,7 +413,7 @@ def test_peak_speed_is_the_largest_target_speed():
 
 def test_headline_bins_error_by_peak_speed():
     sets = headline_sets()
-    data = metrics.headline_data(sets, list(range(15)), n_bins=3, n_boot=500)
+    data = figures.headline_data(sets, list(range(15)), n_bins=3, n_boot=500)
     assert list(data) == ["all", "circle", "fig8", "fly"]
     # all: speeds 0.5 .. 1.9 in three equal-count bins of five: seeds 0-4, 5-9, 10-14.
     for label, gain in (("Classical", 0.01), ("Analytic", 0.02), ("RL+Lead", 0.03)):
@@ -519,12 +520,12 @@ def test_a_bug_keeps_its_traceback(root, monkeypatch):
     def broken(*a, **k):
         raise ValueError("a bug, not a user error")
 
-    monkeypatch.setattr(metrics, "rollout_metrics", broken)
-    args = metrics.Args(root=root, prefix_a="base", prefix_b="learned", bootstrap=200)
+    monkeypatch.setattr(compare_module, "rollout_metrics", broken)
+    args = metrics_cli.Args(root=root, prefix_a="base", prefix_b="learned", bootstrap=200)
     with pytest.raises(ValueError, match="a bug"):
-        metrics.main(args)
+        metrics_cli.run(args)
     with pytest.raises(SystemExit) as exc:  # a user error becomes exit status 2
-        metrics.main(metrics.Args(root=root, prefix_a="nope", prefix_b="learned"))
+        metrics_cli.run(metrics_cli.Args(root=root, prefix_a="nope", prefix_b="learned"))
     assert exc.value.code == 2
 
 

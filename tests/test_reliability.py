@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import env as env_mod
-from rollout import load_prefix, record, rollout_path, save
+from panda_lead.env import PandaLeadEnv
+from panda_lead.rollout import load_prefix, record, rollout_path, save
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,15 +25,15 @@ def run(*args, cwd, timeout=300):
 
 def test_rerun_gives_the_same_rollout_bit_for_bit():
     act = lambda obs, task: np.tanh(obs[:, :3]).astype(np.float32)  # noqa: E731
-    a = record(env_mod.PandaLeadEnv(episode_steps=120), act, traj_seed=17)
-    b = record(env_mod.PandaLeadEnv(episode_steps=120), act, traj_seed=17)
+    a = record(PandaLeadEnv(episode_steps=120), act, traj_seed=17)
+    b = record(PandaLeadEnv(episode_steps=120), act, traj_seed=17)
     for key in ("ee_pos", "qpos", "qvel", "lead", "target_pos"):
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
 
 
 def test_unstable_simulation_ends_the_episode_as_a_flagged_failure(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # MuJoCo appends its warning to MUJOCO_LOG.TXT in the cwd
-    e = env_mod.PandaLeadEnv(w_termination=2.0)
+    e = PandaLeadEnv(w_termination=2.0)
     e.reset(seed=0, options={"traj_seed": 42})
     e.core.qvel[:] = 1e12  # a blow-up: MuJoCo flags the acceleration as bad
     obs, reward, term, trunc, info = e.step(np.zeros(3, dtype=np.float32))
@@ -43,7 +43,7 @@ def test_unstable_simulation_ends_the_episode_as_a_flagged_failure(tmp_path, mon
 
 
 def test_half_written_files_are_never_trusted(tmp_path):
-    r = record(env_mod.PandaLeadEnv(episode_steps=10), lambda o, t: np.zeros((len(o), 3), np.float32), 1)
+    r = record(PandaLeadEnv(episode_steps=10), lambda o, t: np.zeros((len(o), 3), np.float32), 1)
     save(r, rollout_path("set", 1, tmp_path))
     # What an interrupted save leaves behind: a temporary name, never the final one.
     (tmp_path / "set" / ".seed_0002.abc.tmp.npz").write_bytes(b"PK\x03\x04 half")
@@ -55,10 +55,10 @@ def untrained_model(tmp_path_factory):
     """A real (untrained) PPO model with its sidecar, saved the way train.py saves models."""
     from stable_baselines3 import PPO
 
-    from models import save_model
+    from panda_lead.models import save_model
 
     tmp = tmp_path_factory.mktemp("model")
-    e = env_mod.PandaLeadEnv()
+    e = PandaLeadEnv()
     model = PPO("MlpPolicy", e, n_steps=64, batch_size=64, device="cpu")
     path = save_model(model, tmp / "m.zip", {"env_config": e.config, "train_config": {},
                                              "timesteps": 0})
@@ -94,7 +94,7 @@ def test_bad_model_files_get_one_clear_message(untrained_model, tmp_path, case, 
                 data = b"garbage" if item.filename == "policy.pth" else zin.read(item)
                 zout.writestr(item, data)
         if case == "corrupt_member":  # a sidecar bound to the damaged file: the load must say
-            from models import bind_sidecar
+            from panda_lead.models import bind_sidecar
 
             bind_sidecar(bad)
     elif case == "no_sidecar":
@@ -103,7 +103,7 @@ def test_bad_model_files_get_one_clear_message(untrained_model, tmp_path, case, 
         side = json.loads(untrained_model.with_suffix(".json").read_text())
         side["env_config"]["obs_features"] = ["ee_pos", "ee_vel", "target_pos", "target_vel"]
         _copy(untrained_model, bad, side=side)
-        from models import bind_sidecar
+        from panda_lead.models import bind_sidecar
 
         bind_sidecar(bad)  # even a bound sidecar must describe the weights it sits beside
     before = sorted(p.name for p in tmp_path.iterdir())
@@ -132,7 +132,7 @@ def test_soak_script_runs_clean():
 def test_atomic_write_renames_on_success_and_leaves_nothing_on_error(tmp_path):
     import os
 
-    from atomicio import atomic_write
+    from panda_lead.atomicio import atomic_write
 
     target = tmp_path / "sub" / "model.json"
     with atomic_write(target, ".tmp.json") as tmp, open(tmp, "w") as f:
@@ -179,7 +179,7 @@ def test_a_hostile_model_file_runs_nothing(untrained_model, tmp_path, via):
     """SB3's zip holds pickles: PPO.load on this file would run `touch marker`. Every way in
     (eval.py, the loader, train.py --resume) must refuse it without executing anything, even
     with a sidecar that vouches for the file (its hash bound to it)."""
-    from models import ModelError, bind_sidecar, load_policy
+    from panda_lead.models import ModelError, bind_sidecar, load_policy
 
     marker = tmp_path / "PWNED"
     evil = tmp_path / "evil.zip"
@@ -195,7 +195,7 @@ def test_a_hostile_model_file_runs_nothing(untrained_model, tmp_path, via):
         with pytest.raises(ModelError, match="cannot load model"):
             load_policy(evil)
     else:
-        import training
+        from panda_lead import training
 
         run_dir = tmp_path / "run"
         (run_dir / "checkpoints").mkdir(parents=True)
@@ -217,7 +217,7 @@ def test_a_sidecar_of_another_model_with_the_same_observation_size_is_refused(un
     side["env_config"]["obs_features"] = ["ee_pos", "ee_vel", "target_pos", "target_vel",
                                           "prev_action"]  # also 15-D
     other = _copy(untrained_model, tmp_path / "m.zip", side=side)
-    from models import ModelError, load_policy
+    from panda_lead.models import ModelError, load_policy
 
     with pytest.raises(ModelError, match="obs_features: sidecar .*prev_action"):
         load_policy(other)
@@ -228,7 +228,7 @@ def test_a_sidecar_of_another_model_with_the_same_observation_size_is_refused(un
 
 
 def test_archived_models_load_safely_and_are_bound():
-    from models import ARCHIVE_DIR, load_policy
+    from panda_lead.models import ARCHIVE_DIR, load_policy
 
     for p in sorted((ROOT / ARCHIVE_DIR).glob("*.zip")):
         policy, env_config, side = load_policy(p)
@@ -239,8 +239,8 @@ def test_a_full_disk_is_one_line_and_keeps_the_previous_files(untrained_model, t
                                                              monkeypatch):
     import errno
 
-    from errors import UserError
-    from models import save_model
+    from panda_lead.errors import UserError
+    from panda_lead.models import save_model
 
     target = _copy(untrained_model, tmp_path / "m.zip")
     before = target.read_bytes(), target.with_suffix(".json").read_text()
@@ -257,7 +257,7 @@ def test_a_full_disk_is_one_line_and_keeps_the_previous_files(untrained_model, t
     assert (target.read_bytes(), target.with_suffix(".json").read_text()) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "m.zip"]
 
-    r = record(env_mod.PandaLeadEnv(episode_steps=5), lambda o, t: np.zeros((len(o), 3), np.float32), 1)
+    r = record(PandaLeadEnv(episode_steps=5), lambda o, t: np.zeros((len(o), 3), np.float32), 1)
     path = save(r, rollout_path("set", 1, tmp_path))
     old = path.read_bytes()
 
@@ -271,10 +271,10 @@ def test_a_full_disk_is_one_line_and_keeps_the_previous_files(untrained_model, t
 
 
 def test_a_truncated_rollout_file_is_one_clear_error(tmp_path):
-    from errors import UserError
-    from rollout import load
+    from panda_lead.errors import UserError
+    from panda_lead.rollout import load
 
-    r = record(env_mod.PandaLeadEnv(episode_steps=5), lambda o, t: np.zeros((len(o), 3), np.float32), 1)
+    r = record(PandaLeadEnv(episode_steps=5), lambda o, t: np.zeros((len(o), 3), np.float32), 1)
     path = save(r, rollout_path("set", 1, tmp_path))
     path.write_bytes(path.read_bytes()[:200])
     with pytest.raises(UserError, match="cannot read rollout .*damaged or truncated"):

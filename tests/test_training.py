@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from env import EnvConfig
-from errors import UserError
-from training import PRESETS, TrainConfig, parse_args
+from panda_lead.config import EnvConfig
+from panda_lead.errors import UserError
+from panda_lead.training import PRESETS, TrainConfig, parse_args
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--n-envs", "2", "--n-steps", "64", "--batch-size", "64", "--n-epochs", "1",
@@ -149,7 +149,7 @@ def test_archive_refuses_to_overwrite_without_force(archived):
     out = run(ROOT / "train.py", "--archive", "tiny", "--timesteps", "10", cwd=tmp)
     assert out.returncode == 2 and "archive/tiny.zip exists" in out.stderr and "--force" in out.stderr
     assert (tmp / "archive" / "tiny.zip").read_bytes() == before
-    import training
+    from panda_lead import training
 
     with pytest.raises(UserError, match="exists"):
         os.chdir(tmp)
@@ -177,7 +177,7 @@ def test_model_card_snippet_reproduces_the_rollout(archived):
     ev = run(ROOT / "eval.py", "--seeds", "0", "--prefix", "card", "--model", "archive/tiny.zip",
              cwd=tmp)
     assert ev.returncode == 0, ev.stderr
-    from rollout import load
+    from panda_lead.rollout import load
 
     r = load(tmp / "rollouts" / "card" / "seed_0000.npz")
     assert f"{100 * r.error.mean():.6f}" == f"{printed:.6f}"
@@ -280,16 +280,16 @@ def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_pa
                      "--n-steps", "256", "--eval-freq", "1024", "--runs-dir", tmp_path,
                      "--no-progress", cwd=tmp_path, env={"MUJOCO_GL": "egl"})
     assert res.returncode == 0, res.stderr[-2000:]
-    from controllers import make_analytic
-    from env import EnvConfig
-    from training import evaluate
+    from panda_lead.config import EnvConfig
+    from panda_lead.controllers import make_analytic
+    from panda_lead.training import evaluate
 
     lead_task = EnvConfig(obs_features=("ee_pos", "ee_vel", "target_pos", "target_vel",
                                         "target_acc"))  # the joint preset's task, lead action
     expected = evaluate(make_analytic(), lead_task, 500)["mean_error_cm"]
     assert f"analytic {expected:.2f} cm" in res.stdout  # the lead baseline on the same task
     (run,) = tmp_path.glob("joint__*")
-    from models import load_policy
+    from panda_lead.models import load_policy
 
     policy, env_config, _ = load_policy(run / "best_model.zip")  # a 7-D action loads safely
     assert policy.action_space.shape == (7,) and env_config["action"] == "joint"
@@ -298,7 +298,7 @@ def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_pa
 def test_a_cuda_device_that_is_not_there_is_a_clear_error():
     import torch
 
-    import training
+    from panda_lead import training
 
     class Torch:  # torch, with or without a GPU
         device = staticmethod(torch.device)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import trajectory as T
+from panda_lead import trajectory as T
 
 REPO = Path(__file__).parents[1]
 H = 1e-5  # finite-difference step (s)

@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 from conftest import ROOT, run_script
 
-import controller_cli
-import controllers
-import env as env_mod
-import video
-from errors import UserError
-from rollout import record
+from panda_lead import controllers, video
+from panda_lead.cli import run as controller_cli
+from panda_lead.env import PandaLeadEnv
+from panda_lead.errors import UserError
+from panda_lead.rollout import record
 
 EGL = {"MUJOCO_GL": "egl"}
 
@@ -24,7 +23,7 @@ EGL = {"MUJOCO_GL": "egl"}
 @pytest.fixture(scope="module")
 def episode():
     """A 0.2 s analytic-lead episode and the model it ran on (20 rows, 10 frames at 50 fps)."""
-    e = env_mod.PandaLeadEnv(episode_steps=20)
+    e = PandaLeadEnv(episode_steps=20)
     r = record(e, controllers.make_analytic(0.05), 3, "circle",
                {"controller": "analytic", "tau": 0.05, "model": None})
     return r, e.core.model

@@ -11,7 +11,7 @@ CONF = ROOT / "hyperparams" / "ppo.yml"
 
 
 def test_zoo_hyperparams_are_train_py_defaults():
-    import training
+    from panda_lead import training
 
     zoo = yaml.safe_load(CONF.read_text())["PandaLead-v0"]
     args = training.TrainConfig()

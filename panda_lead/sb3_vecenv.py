@@ -16,7 +16,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from env import EnvConfig, LeadTask
+from .config import EnvConfig
+from .task import LeadTask
 
 
 class LeadVecEnv(VecEnv):

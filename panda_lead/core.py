@@ -46,10 +46,11 @@ import mujoco  # noqa: E402
 import mujoco.batch  # noqa: E402
 import numpy as np  # noqa: E402
 
-import trajectory  # noqa: E402
-from clearance import Clearance  # noqa: E402
+from . import trajectory
+from .clearance import Clearance
+from .paths import shipped
 
-ASSETS = Path(__file__).resolve().parent / "assets"
+ASSETS = shipped("assets")
 SCENE_XML = ASSETS / "scene.xml"
 N_JOINTS = 7
 CONTROL_SUBSTEPS = 5  # physics steps per control step: 500 Hz physics (MJCF timestep), 100 Hz control

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from core import analytic_lead
-from env import OBS_SCALE
+from .config import OBS_SCALE
+from .core import analytic_lead
 
 CONTROLLERS = ("classical", "analytic", "policy")
 # Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run studies/tau.py`.

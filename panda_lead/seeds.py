@@ -13,7 +13,7 @@
 
 from __future__ import annotations
 
-from errors import UserError
+from .errors import UserError
 
 TEST_SEEDS = tuple(range(0, 1000))
 QUICK_TEST_SEEDS = TEST_SEEDS[:100]  # the quick subset: archive sidecars and cards report it

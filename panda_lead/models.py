@@ -23,9 +23,9 @@ import subprocess
 import zipfile
 from pathlib import Path
 
-from atomicio import atomic_write
-from env import OBS_FEATURES, EnvConfig
-from errors import UserError
+from .atomicio import atomic_write
+from .config import OBS_FEATURES, EnvConfig
+from .errors import UserError
 
 ARCHIVE_DIR = Path("archive")
 PHYSICS_HZ, CONTROL_HZ = 500, 100
@@ -226,7 +226,7 @@ def spaces_for(env_config: EnvConfig):
     import numpy as np
     from gymnasium import spaces
 
-    from core import N_JOINTS
+    from .core import N_JOINTS
 
     dim = sum(OBS_FEATURES[f] for f in env_config.obs_features)
     actions = 3 if env_config.action == "lead" else N_JOINTS  # a lead, or a joint residual

@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from atomicio import atomic_write
-from errors import UserError
+from .atomicio import atomic_write
+from .errors import UserError
 
 ROLLOUT_DIR = Path("rollouts")
 ARRAY_KEYS = (
@@ -163,9 +163,10 @@ def record_many(config, act_fn, seeds, shapes=None, meta: dict | None = None,
     trajectory seed, as ``env.reset(seed=traj_seed)`` seeds the single env, so an episode is
     the same whether it is played alone, in a batch, or through ``record``.
     """
-    from env import LeadTask, _as_config
+    from .config import as_config
+    from .task import LeadTask
 
-    config = _as_config(config, {})
+    config = as_config(config, {})
     seeds = [int(s) for s in seeds]
     shapes = [None] * len(seeds) if shapes is None else list(shapes)
     out: list[Rollout] = []

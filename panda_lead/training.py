@@ -26,10 +26,10 @@ from typing import Literal
 
 import numpy as np
 
-from env import EnvConfig
-from errors import UserError, did_you_mean
-from models import OBS_12, OBS_15, OBS_29
-from seeds import EVAL_SET
+from .config import EnvConfig
+from .errors import UserError, did_you_mean
+from .models import OBS_12, OBS_15, OBS_29
+from .seeds import EVAL_SET
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class TrainConfig:
     """Torch threads of the training process. One: while the policy acts, the env workers need
     every other core, and idle torch threads spin on them (2 threads on 2 cores: 3-6x slower)."""
     vec_env: Literal["batched", "subproc", "dummy"] = "batched"
-    """batched: all envs in one mujoco.batch.Batch in this process (vecenv.py); subproc: SB3
+    """batched: all envs in one mujoco.batch.Batch in this process (sb3_vecenv.py); subproc: SB3
     SubprocVecEnv, a process per env (the reference configuration); dummy: a loop of single
     envs in this process."""
     n_workers: int = 0
@@ -316,7 +316,7 @@ def read_run_config(run_dir: Path) -> TrainConfig:
 def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str = "batched",
                  n_workers: int = 0):
     """The training envs. batched: one `mujoco.batch.Batch` of n_envs arms in this process
-    (vecenv.LeadVecEnv; n_workers = MuJoCo threads, 0 = all cores); subproc: SB3's
+    (sb3_vecenv.LeadVecEnv; n_workers = MuJoCo threads, 0 = all cores); subproc: SB3's
     SubprocVecEnv, a process per env (the reference configuration); dummy: a loop of single
     envs in this process."""
     import gymnasium as gym
@@ -324,7 +324,7 @@ def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str
 
     config = env_config if isinstance(env_config, EnvConfig) else EnvConfig.from_dict(env_config)
     if kind == "batched":
-        from vecenv import LeadVecEnv
+        from .sb3_vecenv import LeadVecEnv
 
         vec = LeadVecEnv(config, n_envs, nthread=n_workers)
         vec.seed(seed)
@@ -333,7 +333,7 @@ def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str
 
     def make(rank: int):
         def thunk():
-            import env  # noqa: F401  (registers PandaLead-v0 in the worker)
+            import panda_lead  # noqa: F401  (registers PandaLead-v0 in the worker)
 
             if kind == "subproc":  # signals are the main process's to handle (it saves the model)
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -353,7 +353,7 @@ def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str
 def evaluate(act_fn, env_kwargs: EnvConfig | dict, steps: int, episodes=EVAL_SET) -> dict:
     """Deterministic episodes on (seed, shape) pairs, played as one batch -> tracking metrics
     in cm and reward."""
-    from rollout import record_many
+    from .rollout import record_many
 
     base = env_kwargs if isinstance(env_kwargs, EnvConfig) else EnvConfig.from_dict(env_kwargs)
     config = base.replace(episode_steps=steps)
@@ -394,8 +394,8 @@ def _callbacks(run_dir: Path, config: TrainConfig, on_eval=None, total: int = 0,
                progress: bool = False, signals=None):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-    from controllers import classical, make_analytic, make_policy
-    from models import save_model, write_json_atomic
+    from .controllers import classical, make_analytic, make_policy
+    from .models import save_model, write_json_atomic
 
     class TrackingEval(BaseCallback):
         """Evaluates on the fixed evaluation set, logs cm figures beside the two baselines,
@@ -503,7 +503,7 @@ def _callbacks(run_dir: Path, config: TrainConfig, on_eval=None, total: int = 0,
 def speed_cap(step: int, start: float, steps: int) -> float | None:
     """The curriculum's peak-speed cap at a training step: linear from start to the fastest
     trajectory (trajectory.MAX_SPEED), then none."""
-    import trajectory
+    from . import trajectory
 
     if step >= steps:
         return None
@@ -557,7 +557,7 @@ def newest_checkpoint(run_dir: Path) -> tuple[Path, dict] | None:
     """The valid saved model with the most timesteps: its zip must match the SHA-256 in its
     sidecar. A damaged or half-written newest file is reported and skipped, so resuming falls
     back to the one before."""
-    from models import ModelError, verify
+    from .models import ModelError, verify
 
     cands = list((run_dir / "checkpoints").glob("model_*_steps.zip"))
     cands += [run_dir / "interrupted_model.zip", run_dir / "final_model.zip"]
@@ -607,7 +607,7 @@ def make_logger(folder: Path):
 
 
 def archive_path(name: str) -> Path:
-    from models import ARCHIVE_DIR
+    from .models import ARCHIVE_DIR
 
     return ARCHIVE_DIR / f"{check_plain_name(name, '--archive')}.zip"
 
@@ -623,9 +623,9 @@ def archive_model(run_dir: Path, name: str, config=None, force: bool = False) ->
     """Copy the run's best (else final) model to archive/NAME.zip, byte for byte, with a sidecar
     holding test-set metrics and a model card archive/NAME.md. Refuses to replace an existing
     archived model unless ``force``. (``config`` is unused: the source's sidecar says it.)"""
-    from controllers import make_policy
-    from models import file_sha256, load_policy, write_json_atomic
-    from seeds import QUICK_TEST_SEEDS as TEST_SEEDS
+    from .controllers import make_policy
+    from .models import file_sha256, load_policy, write_json_atomic
+    from .seeds import QUICK_TEST_SEEDS as TEST_SEEDS
 
     _check_archive_free(name, force)
     src = run_dir / "best_model.zip"
@@ -635,7 +635,7 @@ def archive_model(run_dir: Path, name: str, config=None, force: bool = False) ->
     test = evaluate(make_policy(policy), env_config, 500, episodes=[(s, None) for s in TEST_SEEDS])
     seed0 = card_number(policy, env_config)
     dst = archive_path(name)
-    from atomicio import atomic_write
+    from .atomicio import atomic_write
 
     with atomic_write(dst, ".tmp.zip") as tmp:
         shutil.copyfile(src, tmp)
@@ -648,8 +648,8 @@ def archive_model(run_dir: Path, name: str, config=None, force: bool = False) ->
 
 def card_number(policy, env_config: dict) -> float:
     """Mean tracking error (cm) on test seed 0, 5 s: the number the model card reproduces."""
-    from controllers import make_policy
-    from rollout import record_many
+    from .controllers import make_policy
+    from .rollout import record_many
 
     r = record_many(EnvConfig.from_dict(env_config).replace(episode_steps=500),
                     make_policy(policy), [0])[0]
@@ -660,8 +660,8 @@ CARD_SNIPPET = '''\
 import gymnasium as gym
 import numpy as np
 
-import env  # noqa: F401  (registers PandaLead-v0)
-from models import load_policy
+import panda_lead  # noqa: F401  (registers PandaLead-v0)
+from panda_lead.models import load_policy
 
 policy, env_config, sidecar = load_policy("{zip}")  # weights only: never unpickles
 e = gym.make("PandaLead-v0", **{{**env_config, "episode_steps": 500}}, max_episode_steps=500)
@@ -678,7 +678,7 @@ print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {see
 
 def write_card(zip_path: Path, side: dict) -> Path:
     """archive/NAME.md: what the model is, its config, its test results, how to load it."""
-    from seeds import QUICK_TEST_SEEDS as TEST_SEEDS
+    from .seeds import QUICK_TEST_SEEDS as TEST_SEEDS
 
     name = zip_path.stem
     train = side.get("train_config", {})
@@ -729,7 +729,7 @@ reads only tensors (`torch.load(weights_only=True)`), after checking the zip's S
 |---|---|
 {train_rows}
 """
-    from atomicio import atomic_write
+    from .atomicio import atomic_write
 
     out = zip_path.with_suffix(".md")
     with atomic_write(out, ".tmp.md") as tmp:
@@ -758,7 +758,7 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
     from stable_baselines3 import PPO
     from stable_baselines3.common.utils import set_random_seed
 
-    from models import load_training_state, save_model, write_json_atomic
+    from .models import load_training_state, save_model, write_json_atomic
 
     if args.archive:
         _check_archive_free(args.archive, args.force)  # before hours of training, not after

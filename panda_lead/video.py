@@ -11,7 +11,7 @@ both paths; the target's last second (red trail) and the tip's (blue); the lead 
 arrow from the target the IK used to the point it aimed at (yellow ball); the controller, the
 time, and the tracking error now and averaged so far, in cm.
 
-    import video
+    from . import video
     video.write("out.mp4", [rollout_a, rollout_b], model)   # model: the scene's MjModel
 
 A failed write (full disk, ffmpeg error, Ctrl-C) raises ``errors.UserError`` with one line and
@@ -32,8 +32,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from atomicio import atomic_write
-from errors import UserError
+from .atomicio import atomic_write
+from .errors import UserError
 
 CONTROL_HZ = 100  # rollout rows per second (one per control step)
 

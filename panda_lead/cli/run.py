@@ -17,8 +17,8 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
-from env import EnvConfig, config_docs
-from errors import UserError, did_you_mean, exit_on_user_error
+from ..config import EnvConfig, config_docs
+from ..errors import UserError, did_you_mean, exit_on_user_error
 
 
 def _overrides_class():
@@ -74,8 +74,8 @@ PREFIX_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
 def _validate(args: Args):
     import math
 
-    import trajectory
-    from seeds import parse_seed_range
+    from .. import trajectory
+    from ..seeds import parse_seed_range
 
     seeds = parse_seed_range(args.seeds) if args.seeds is not None else None
     if not PREFIX_RE.fullmatch(args.prefix):
@@ -100,9 +100,9 @@ def _validate(args: Args):
 
 def _build(args: Args, overrides: dict):
     """-> (env, act_fn, meta) for the chosen controller; a policy's env comes from its sidecar."""
-    import controllers
-    import env as env_mod
-    from models import load_policy, newest_archived
+    from .. import controllers
+    from ..env import PandaLeadEnv
+    from ..models import load_policy, newest_archived
 
     steps = int(round(args.duration * 100))
     meta = {"controller": args.controller, "model": None}
@@ -128,7 +128,7 @@ def _build(args: Args, overrides: dict):
         meta.pop("model_sha256", None)
     kwargs = {**env_kwargs, **overrides, "episode_steps": steps}
     render = "rgb_array" if args.video else None
-    env = env_mod.PandaLeadEnv(**kwargs, render_mode=render)
+    env = PandaLeadEnv(**kwargs, render_mode=render)
     return env, act, meta, model
 
 
@@ -141,7 +141,7 @@ def _claim_prefix(folder: Path, meta: dict, env_config: dict, force: bool):
     ``force``, the others are deleted. Returns the open lock file (keep it until done)."""
     import fcntl
 
-    from rollout import read_meta
+    from ..rollout import read_meta
 
     folder.mkdir(parents=True, exist_ok=True)
     lock = open(folder / ".lock", "w")
@@ -177,7 +177,7 @@ def _claim_prefix(folder: Path, meta: dict, env_config: dict, force: bool):
 
 
 def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
-    from rollout import record_many, rollout_path, save
+    from ..rollout import record_many, rollout_path, save
 
     env, act, meta, _ = _build(args, overrides)
     folder = args.rollouts_dir / args.prefix
@@ -205,8 +205,8 @@ def compare_pair(args: Args) -> tuple[str, str] | None:
 
 
 def write_video(args: Args, seed: int, overrides: dict) -> None:
-    import video
-    from rollout import record
+    from .. import video
+    from ..rollout import record
 
     names = compare_pair(args) or (args.controller,)
     # Each controller is built as if run alone, so its meta (and the label drawn from it) says

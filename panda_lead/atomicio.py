@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from errors import UserError
+from .errors import UserError
 
 # mkstemp makes its files private (0600); the final file gets the permissions an ordinary
 # open() would have given it (0666 less the umask), so archives and rollouts stay readable.

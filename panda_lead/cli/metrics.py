@@ -1,0 +1,224 @@
+"""Compare rollout sets (e.g. classical IK+PD vs RL+Lead) seed by seed, with paired statistics.
+
+    uv run metrics.py --prefix-a ikpd --prefix-b eval --breakdown --plot out.png
+    uv run metrics.py --headline ikpd analytic eval --plot headline.png
+
+The table reports, per set, mean ± std and median; for the paired differences B - A the mean
+and the median, each with a 95% percentile-bootstrap CI, the share of seeds where B is better,
+and a Wilcoxon signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0
+(and at least 10 pairs back it). The headline figure (--headline, two or more sets) draws mean
+and median error against the target's peak speed. Every definition, exactly as computed:
+docs/metrics.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+from rich import box
+from rich.console import Console
+from rich.table import Table
+
+from .. import rollout
+from ..errors import UserError, exit_on_user_error
+from ..metrics.pairing import (
+    Comparison,
+    check_compatible,
+    check_options,
+    check_sets,
+    compare,
+    load_set,
+    pair,
+    require_seeds,
+    seed_ranges,
+    seed_set_title,
+    set_labels,
+)
+from ..metrics.figures import headline_data, plot, plot_headline
+from ..metrics.stats import BY_KEY, Row, claim, fmt_ci, fmt_num
+
+
+def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str) -> Table:
+    table = Table(title=title, title_justify="left")
+    for name in ("Metric", "better", f"{label_a} mean ± std", f"{label_a} median",
+                 f"{label_b} mean ± std", f"{label_b} median", "mean diff (B - A) [95% CI]",
+                 "median diff (B - A) [95% CI]", "B better", "p (Wilcoxon)"):
+        table.add_column(name, justify="left" if name == "Metric" else "right")
+    for r in rows:
+        f = BY_KEY[r.key].fmt
+        ms = [fmt_num(m, f) + ("" if not np.isfinite(s) else f" ± {s:{f}}")
+              for m, s in ((r.mean_a, r.std_a), (r.mean_b, r.std_b))]
+        share = f"{100 * r.share_improved:.0f}%" if r.n_pairs else "n/a"
+        p = "n/a" if not np.isfinite(r.p) else f"{r.p:.3g}"
+        table.add_row(r.label, r.better, ms[0], fmt_num(r.median_a, f), ms[1], fmt_num(r.median_b, f),
+                      f"{fmt_num(r.delta, f, True)} {fmt_ci(r.ci, f)}",
+                      f"{fmt_num(r.median_delta, f, True)} {fmt_ci(r.median_ci, f)}", share, p)
+    return table
+
+
+def seed_table(cmp: Comparison) -> Table:
+    table = Table(title="per seed", title_justify="left")
+    for name in ("seed", "shape", f"{cmp.label_a} mean error (cm)",
+                 f"{cmp.label_b} mean error (cm)", "diff (B - A)"):
+        table.add_column(name, justify="right")
+    for s in cmp.seeds:
+        ea, eb = cmp.metrics_a[s]["mean_err"], cmp.metrics_b[s]["mean_err"]
+        table.add_row(str(s), cmp.shapes[s], f"{ea:.2f}", f"{eb:.2f}", f"{eb - ea:+.2f}")
+    return table
+
+
+@dataclass
+class Args:
+    prefix_a: str = "ikpd"
+    """Rollout prefix of set A (the baseline), read from <root>/<prefix>/seed_*.npz."""
+    prefix_b: str = "eval"
+    """Rollout prefix of set B (compared against A: differences are B - A)."""
+    label_a: str | None = None
+    """Display name of set A (also picks its colour in figures); default: from the rollouts'
+    controller (Classical, Analytic or RL+Lead), the prefix where both sets share one."""
+    label_b: str | None = None
+    """Display name of set B; default as for A."""
+    root: Path = rollout.ROLLOUT_DIR
+    """Folder that holds the rollout prefixes."""
+    breakdown: bool = False
+    """Also print a per-seed table and one table per target shape."""
+    plot: Path | None = None
+    """Write a PNG: paired differences in mean error and error over time (or, with
+    --headline, the headline figure)."""
+    plot_seeds: tuple[int, ...] = ()
+    """Seeds also drawn as thin lines in the error-over-time panel (default: none)."""
+    headline: tuple[str, ...] = ()
+    """Headline figure instead of the A/B table: mean and median error against the target's
+    peak speed for these 2 or more prefixes (e.g. ikpd analytic eval); needs --plot."""
+    labels: tuple[str, ...] = ()
+    """Display names for the --headline prefixes, in order (default: from each set's
+    controller, as for --label-a; the prefixes where two sets would share a name)."""
+    speed_bins: int = 5
+    """Number of equal-count peak-speed bins in the headline figure."""
+    settle_time: float = 0.5
+    """Seconds of start-up transient excluded from 'settled mean error' (steps with t >= this)."""
+    band_cm: float = 5.0
+    """Error band in cm for 'time within band' and 'within band on reachable'."""
+    tight_band_cm: float = 2.0
+    """The second, tighter error band in cm ('time within' this band)."""
+    bootstrap: int = 10000
+    """Number of bootstrap resamples for the 95% CIs (mean and median)."""
+    ci_seed: int = 0
+    """Seed of the bootstrap random generator (makes CIs reproducible)."""
+    markdown: bool = False
+    """Print the tables as GitHub markdown (what the results tables are pasted from)."""
+
+
+def _print_tables(console: Console, tables: list[Table], markdown: bool) -> None:
+    for table in tables:
+        if not markdown:
+            console.print(table)
+            continue
+        console.print(f"\n{table.title}" + (f" ({table.caption})" if table.caption else ""),
+                      markup=False, highlight=False)
+        table.title = table.caption = None
+        table.box = box.MARKDOWN
+        # Wide enough that no cell wraps: a wrapped cell would split a markdown row in two.
+        wide = Console(width=100_000)
+        with wide.capture() as captured:
+            wide.print(table)
+        # rich pads the markdown box with blank rows of spaces: keep only the table lines
+        print("\n".join(ln.rstrip() for ln in captured.get().splitlines() if ln.strip()))
+
+
+def _say(console: Console, line: str) -> None:
+    console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
+def run_headline(args: Args, console: Console) -> None:
+    if len(args.headline) < 2:
+        raise UserError(f"--headline needs 2 or more prefixes, got {list(args.headline)}")
+    if args.plot is None:
+        raise UserError("--headline draws a figure: give --plot PATH.png")
+    if args.labels and len(args.labels) != len(args.headline):
+        raise UserError(f"--labels has {len(args.labels)} names for "
+                        f"{len(args.headline)} --headline prefixes")
+    if args.speed_bins < 1:
+        raise UserError(f"--speed-bins must be at least 1, got {args.speed_bins}")
+    loaded = [load_set(p, args.root) for p in args.headline]
+    labels = list(args.labels) or set_labels(loaded, list(args.headline))
+    if len(set(labels)) != len(labels):
+        raise UserError(f"labels must differ, got {labels}; use --labels")
+    sets = dict(zip(labels, loaded, strict=True))
+    check_sets(sets)
+    p = pair(sets)
+    require_seeds(p, sets)
+    _say(console, f"n={len(p.seeds)} seeds in every set ({', '.join(labels)})")
+    for line in p.warnings():
+        _say(console, line)
+    data = headline_data(sets, p.seeds, args.speed_bins, args.bootstrap, args.ci_seed)
+    _say(console, f"wrote {plot_headline(data, p.seeds, args.plot)}")
+
+
+def run_compare(args: Args, console: Console) -> None:
+    a, b = load_set(args.prefix_a, args.root), load_set(args.prefix_b, args.root)
+    if args.label_a is None or args.label_b is None:
+        auto_a, auto_b = set_labels([a, b], [args.prefix_a, args.prefix_b])
+        args = dataclasses.replace(args, label_a=args.label_a or auto_a,
+                                   label_b=args.label_b or auto_b)
+    # Name the prefixes in errors; the Comparison itself keeps the display labels.
+    name_a, name_b = f"{args.label_a} ({args.prefix_a})", f"{args.label_b} ({args.prefix_b})"
+    check_compatible(a, b, name_a, name_b)
+    cmp = compare(a, b, args.settle_time, args.band_cm, args.bootstrap, args.ci_seed,
+                  args.label_a, args.label_b, args.tight_band_cm)
+    missing = [s for s in args.plot_seeds if s not in cmp.seeds]
+    if args.plot and missing:
+        raise UserError(f"--plot-seeds {missing} are not compared seeds; compared: "
+                        f"{seed_ranges(cmp.seeds)}")
+
+    _say(console, f"n={len(cmp.seeds)} pairs duration={cmp.duration:.2f}s")
+    # On stdout, not stderr, so a saved report also says which seeds it left out.
+    for prefix, seeds in ((args.prefix_a, cmp.only_a), (args.prefix_b, cmp.only_b)):
+        if seeds:
+            _say(console, f"warning: seeds only in {prefix}, not compared: {seeds}")
+    for line in cmp.pairing.warnings(unpaired=False):
+        _say(console, line)
+    _say(console, f"A = {args.label_a} ({args.root}/{args.prefix_a}), "
+                  f"B = {args.label_b} ({args.root}/{args.prefix_b})")
+    caption = (f"{seed_set_title(cmp.seeds)}; settle {args.settle_time:g} s; CIs: paired "
+               f"bootstrap over seeds, {args.bootstrap} resamples, seed {args.ci_seed}")
+    tables = [metrics_table(cmp.rows, args.label_a, args.label_b, "all seeds")]
+    tables[0].caption = caption
+    if args.breakdown:
+        tables.append(seed_table(cmp))
+        for shape, rows in cmp.by_shape.items():
+            n = sum(1 for s in cmp.seeds if cmp.shapes[s] == shape)
+            tables.append(metrics_table(rows, args.label_a, args.label_b, f"shape {shape} (n={n})"))
+    _print_tables(console, tables, args.markdown)
+    bullet = "- " if args.markdown else "  "
+    _say(console, f"\nclaims, {args.label_b} vs {args.label_a} (shown = the 95% CI of the paired "
+                  "difference excludes 0):")
+    for row in cmp.rows:
+        _say(console, bullet + claim(row, args.label_b))
+    if args.plot:
+        path = plot(cmp, a, b, list(args.plot_seeds), args.band_cm, args.plot, args.settle_time,
+                    args.tight_band_cm)
+        _say(console, f"wrote {path}")
+
+
+@exit_on_user_error
+def run(args: Args) -> int:
+    # Validate every number before reading anything: 'nan' must not become '0% in band'.
+    check_options(args.settle_time, args.band_cm, args.tight_band_cm, args.bootstrap,
+                  args.ci_seed)
+    # Off a terminal rich would wrap at 80 columns and break the table apart.
+    console = Console(width=None if sys.stdout.isatty() else 240)
+    if args.headline:
+        run_headline(args, console)
+    else:
+        run_compare(args, console)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(tyro.cli(Args, args=argv, description=__doc__))

@@ -1,0 +1,210 @@
+"""`EnvConfig`: every setting of PandaLead-v0 in one typed, frozen config, and the observation
+layout it selects. Sidecars store it whole; the command line sets it as ``--env.max-lead 0.1``;
+presets are values of it.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import math
+import textwrap
+from dataclasses import dataclass, field
+from functools import cache
+from typing import Literal
+
+from . import trajectory
+from .core import N_JOINTS
+from .errors import UserError, did_you_mean
+
+OBS_FEATURES = {
+    "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
+    "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3,
+}
+# Each feature is divided by a fixed scale so that every input of the policy is of order one
+# (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
+# statistics to save beside a model, unlike VecNormalize.
+OBS_SCALE = {
+    "ee_pos": 1.0, "ee_vel": 2.5, "target_pos": 1.0, "target_vel": 2.5, "target_acc": 30.0,
+    "joint_pos": 1.0, "joint_vel": 2.5, "prev_action": 1.0,
+}
+DEFAULT_OBS = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc")
+REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", "alive",
+                "termination")
+
+
+def check_features(features) -> tuple[str, ...]:
+    """Validate a feature selection and put it in the canonical order."""
+    features = (features,) if isinstance(features, str) else tuple(features)
+    for f in features:
+        if f not in OBS_FEATURES:
+            raise UserError(f"unknown observation feature {f!r}" + did_you_mean(f, OBS_FEATURES))
+    if not features:
+        raise UserError("the observation needs at least one feature")
+    return tuple(f for f in OBS_FEATURES if f in features)
+
+
+def obs_layout(features) -> list[tuple[str, int, int]]:
+    """(feature, start, stop) for each selected feature: the index table of the observation."""
+    layout, start = [], 0
+    for f in check_features(features):
+        layout.append((f, start, start + OBS_FEATURES[f]))
+        start += OBS_FEATURES[f]
+    return layout
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Every setting of PandaLead-v0. Sidecars store it whole; the command line sets it as
+    ``--env.max-lead 0.1``; presets are values of it."""
+
+    obs_features: tuple[str, ...] = DEFAULT_OBS
+    """Observation features (kept in the table's order; see the observation table)."""
+    max_lead: float = 0.15
+    """Lead in metres per axis at action +-1."""
+    episode_steps: int = 200
+    """Control steps per episode (100 Hz: 200 = 2 s; the test rollouts use 500 = 5 s)."""
+    shapes: tuple[str, ...] | None = None
+    """Shapes training targets are drawn from (None: circle, fig8 and fly, as the seed says)."""
+    w_distance: float = 1.0
+    """Weight of -distance (per metre of tip-target error)."""
+    w_tracking: float = 0.0
+    """Weight of exp(-distance / tracking_scale)."""
+    tracking_scale: float = 0.05
+    """Length scale of the tracking term (m)."""
+    w_action: float = 0.0
+    """Weight of -|action|^2."""
+    w_action_change: float = 0.0
+    """Weight of -|action - previous action|^2."""
+    w_collision: float = 0.0
+    """Weight of -penetration depth (per metre) of the deepest self-collision in the step."""
+    w_alive: float = 0.0
+    """Bonus per step."""
+    w_termination: float = 0.0
+    """Penalty on the step that terminates (self-collision when terminating on it, instability)."""
+    terminate_on_collision: bool = False
+    """End the episode (terminated) on a self-collision."""
+    obs_noise: dict[str, float] = field(default_factory=dict)
+    """Gaussian noise std per observation feature, in the feature's unit (m, m/s, m/s^2, rad)."""
+    ik_iters: int = 1
+    """DLS iterations per control step."""
+    ik_clearance: float = 0.0
+    """Collision-aware IK: keep the arm's links this far apart (m; e.g. 0.02) by a velocity
+    damper on the IK step (clearance.py); 0: off, the plain IK."""
+    obs_delay: int = 0
+    """Observation latency in control steps (10 ms each): the policy sees the state of k steps ago."""
+    action_delay: int = 0
+    """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
+    random_delay: bool = False
+    """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    action: Literal["lead", "joint"] = "lead"
+    """lead: the action is a Cartesian lead added to the IK target (3-D); joint: a residual
+    added to the IK's joint goal (7-D, one per joint; it can move the elbow, a lead cannot)."""
+    max_joint_offset: float = 0.2
+    """With action "joint": the joint-goal offset (rad) at action +-1."""
+    max_peak_speed: float | None = None
+    """Redraw training trajectories until their peak speed is at most this (m/s); None: any.
+    Named trajectory seeds (test, evaluation) are never filtered."""
+
+    def __post_init__(self):
+        # Normalise (tuples in canonical order, plain floats) so equal settings compare equal.
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        set_("obs_features", check_features(self.obs_features))
+        if self.shapes is not None:
+            shapes = (self.shapes,) if isinstance(self.shapes, str) else tuple(self.shapes)
+            for s in shapes:
+                if s not in trajectory.SHAPES:
+                    raise UserError(f"unknown shape {s!r}" + did_you_mean(s, trajectory.SHAPES))
+            set_("shapes", shapes or None)
+        if not isinstance(self.obs_noise, dict):
+            raise UserError(f"obs_noise must map feature names to a std, got {self.obs_noise!r}")
+        for f, std in self.obs_noise.items():
+            if f not in OBS_FEATURES:
+                raise UserError(f"obs_noise: unknown feature {f!r}" + did_you_mean(f, OBS_FEATURES))
+            if not (isinstance(std, int | float) and math.isfinite(std) and std >= 0):
+                raise UserError(f"obs_noise[{f!r}] must be a finite std >= 0, got {std!r}")
+        set_("obs_noise", {f: float(v) for f, v in self.obs_noise.items()})
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.type == "float":
+                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                    raise UserError(f"{f.name} must be a finite number, got {v!r}")
+                set_(f.name, float(v))
+            elif f.type in ("int", "bool") and type(v) is not (int if f.type == "int" else bool):
+                kind = "an integer" if f.type == "int" else "true or false"
+                raise UserError(f"{f.name} must be {kind}, got {v!r}")
+        if self.max_lead < 0:
+            raise UserError(f"max_lead must be >= 0, got {self.max_lead}")
+        if self.episode_steps < 1:
+            raise UserError(f"episode_steps must be >= 1, got {self.episode_steps}")
+        if self.ik_iters < 1:
+            raise UserError(f"ik_iters must be >= 1, got {self.ik_iters}")
+        if self.ik_clearance < 0 or (self.ik_clearance > 0 and self.ik_iters != 1):
+            raise UserError(f"ik_clearance must be >= 0 and needs ik_iters 1, got "
+                            f"{self.ik_clearance} with ik_iters {self.ik_iters}")
+        if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
+            raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
+                            f"{self.obs_delay}, {self.action_delay}")
+        if self.action not in ("lead", "joint"):
+            raise UserError(f"action must be 'lead' or 'joint', got {self.action!r}")
+        if self.action == "joint" and "prev_action" in self.obs_features:
+            raise UserError("prev_action is a 3-D lead feature; it cannot be observed with "
+                            "action 'joint'")
+        if self.max_joint_offset < 0:
+            raise UserError(f"max_joint_offset must be >= 0, got {self.max_joint_offset}")
+        if self.max_peak_speed is not None:
+            cap = self.max_peak_speed
+            if isinstance(cap, bool) or not isinstance(cap, int | float) or not cap > 0.25:
+                raise UserError(f"max_peak_speed must be a speed above 0.25 m/s, got {cap!r}")
+            set_("max_peak_speed", float(cap))
+        if self.tracking_scale <= 0:
+            raise UserError(f"tracking_scale must be > 0, got {self.tracking_scale}")
+
+    @classmethod
+    def from_dict(cls, settings: dict) -> EnvConfig:
+        """From a sidecar or keyword arguments; an unknown name is one clear error."""
+        if not isinstance(settings, dict):
+            raise UserError(f"env settings must be a mapping, got {type(settings).__name__}")
+        names = [f.name for f in dataclasses.fields(cls)]
+        for k in settings:
+            if k not in names:
+                raise UserError(f"unknown env setting {k!r}" + did_you_mean(k, names))
+        return cls(**settings)
+
+    def replace(self, **changes) -> EnvConfig:
+        return self.from_dict({**self.to_dict(), **changes})
+
+    def to_dict(self) -> dict:
+        """JSON-friendly (lists for tuples): what sidecars and config.json hold."""
+        d = dataclasses.asdict(self)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+@cache
+def config_docs() -> dict[str, str]:
+    """Each EnvConfig field's docstring (the string under it), read from the source."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(EnvConfig)))
+    body, docs = tree.body[0].body, {}
+    for a, b in zip(body, body[1:], strict=False):
+        documented = isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)
+        if isinstance(a, ast.AnnAssign) and documented:
+            docs[a.target.id] = " ".join(str(b.value.value).split())
+    return docs
+
+
+def arguments_table() -> str:
+    """The env docstring's arguments table, made from EnvConfig (so it cannot drift)."""
+    rows = ["| name | type | default | meaning |", "|---|---|---|---|"]
+    defaults = EnvConfig()
+    for f in dataclasses.fields(EnvConfig):
+        cells = (f.name, f.type, repr(getattr(defaults, f.name)), config_docs()[f.name])
+        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(rows)
+
+
+def as_config(config: EnvConfig | dict | None, overrides: dict) -> EnvConfig:
+    if config is None:
+        return EnvConfig.from_dict(overrides)
+    base = config if isinstance(config, EnvConfig) else EnvConfig.from_dict(config)
+    return base.replace(**overrides) if overrides else base

@@ -1,0 +1,202 @@
+"""`PandaLeadEnv`, the single Gymnasium env of PandaLead-v0: ``gymnasium.make("PandaLead-v0")``.
+
+It is the batched task with N=1 (task.LeadTask), so its episodes are those of the vector envs
+bit for bit. ``import panda_lead`` registers it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import textwrap
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .config import EnvConfig, arguments_table, as_config
+from .errors import UserError
+from .task import LeadTask, failure_of
+
+
+class PandaLeadEnv(gym.Env):
+    """A Franka Panda keeps its tip on a fast target; the action is a lead for the IK target.
+
+    Each step (100 Hz) the target moves along an analytic trajectory (`trajectory.py`); the
+    IK+PD core (`core.ArmBatch`) aims the tip at ``target + lead`` for 5 physics steps (500 Hz).
+    Zero action is exactly the classical controller.
+
+    ## Action space
+    ``Box(-1, 1, (3,), float32)``; ``lead = action * max_lead`` (metres, world x, y, z).
+    Actions outside [-1, 1] are clipped; NaN or infinite actions raise ``ValueError``.
+
+    ## Observation space
+    ``Box(-inf, inf, (n,), float32)``: the selected features, always in this order:
+
+    | feature     | size | meaning (world frame)                                | divided by |
+    |-------------|------|------------------------------------------------------|------------|
+    | ee_pos      | 3    | tip position (m)                                     | 1          |
+    | ee_vel      | 3    | tip velocity, finite difference over one step (m/s)  | 2.5        |
+    | target_pos  | 3    | target position (m)                                  | 1          |
+    | target_vel  | 3    | target velocity, analytic (m/s)                      | 2.5        |
+    | target_acc  | 3    | target acceleration, analytic (m/s^2)                | 30         |
+    | joint_pos   | 7    | arm joint angles (rad)                               | 1          |
+    | joint_vel   | 7    | arm joint velocities (rad/s)                         | 2.5        |
+    | prev_action | 3    | the previous action, in [-1, 1]                      | 1          |
+
+    Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
+    gives the index ranges. ``obs_noise`` adds Gaussian noise (std per feature, in the
+    feature's physical unit) to what the policy sees; the IK target is always the true target.
+
+    ## Reward
+    A sum of weighted terms, each reported in ``info["reward_terms"]`` (they add up to the
+    reward exactly); ``d`` is the tip-target distance (m) after the step:
+    distance ``-w_distance*d``; tracking ``w_tracking*exp(-d/tracking_scale)``; action
+    ``-w_action*|a|^2``; action_change ``-w_action_change*|a - a_prev|^2``; collision
+    ``-w_collision*depth`` (deepest self-collision penetration in m); alive ``w_alive``;
+    termination ``-w_termination`` on the step that terminates.
+
+    ## Starting state
+    The arm at the MJCF "home" keyframe, at rest; the trajectory drawn from ``self.np_random``
+    (a seed from the training range, the shape from ``shapes``) unless ``reset(options=...)``
+    names ``traj_seed`` (and optionally ``shape``): ``reset(options={"traj_seed": 7})`` plays
+    test trajectory 7.
+
+    ## Episode end
+    ``truncated`` after ``episode_steps`` steps: the env precomputes the episode's target path
+    at reset, so the length has one home, this setting. ``gymnasium.make("PandaLead-v0",
+    episode_steps=500)`` runs 500 steps and its ``spec.max_episode_steps`` says 500; no
+    TimeLimit is registered. Gymnasium's own ``max_episode_steps=N`` adds a TimeLimit, which can
+    only end an episode sooner than ``episode_steps``.
+    ``terminated`` only for a real failure: a self-collision when ``terminate_on_collision``
+    is set, or an unstable simulation (``info["failure"] == "unstable"``, always).
+
+    ## Arguments
+    ``PandaLeadEnv(config: EnvConfig | dict | None = None, render_mode=None, width=640,
+    height=480, **settings)``; settings override the config's fields:
+
+    """
+
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 100}
+    _spec = None
+
+    @property
+    def spec(self):
+        return self._spec
+
+    @spec.setter
+    def spec(self, value) -> None:
+        # gymnasium.make records a spec without max_episode_steps (none is registered): fill it
+        # in from the one home of the episode length, so RL Zoo and wrappers read the truth.
+        steps = self.cfg.episode_steps
+        if value is not None and value.max_episode_steps != steps:
+            value = dataclasses.replace(value, max_episode_steps=steps)
+        self._spec = value
+
+    def __init__(self, config: EnvConfig | dict | None = None, render_mode: str | None = None,
+                 width: int = 640, height: int = 480, **settings):
+        self.cfg = as_config(config, settings)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise UserError(f"render_mode must be one of {self.metadata['render_modes']}, "
+                            f"got {render_mode!r}")
+        self.task = LeadTask(self.cfg, 1, nthread=1)
+        self.task.rngs[0] = self.np_random  # the env's own seeded generator drives slot 0
+        self.core = self.task.core
+        self.dt = self.task.dt
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
+        self.action_space = spaces.Box(-1.0, 1.0, (self.task.action_dim,), dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
+        self.render_mode, self._width, self._height = render_mode, width, height
+        self._renderer = self._viewer = self._render_data = None
+        self.trail: list[np.ndarray] = []
+
+    def set_speed_cap(self, cap: float | None) -> None:
+        """See LeadTask.set_speed_cap (the speed curriculum calls it through env_method)."""
+        self.task.set_speed_cap(cap)
+
+    # Sidecars and older callers read these.
+    @property
+    def config(self) -> dict:
+        return self.cfg.to_dict()
+
+    @property
+    def max_lead(self) -> float:
+        return self.cfg.max_lead
+
+    @property
+    def _layout(self):
+        return self.task.layout
+
+    @property
+    def traj(self):
+        return self.task.trajs[0]
+
+    @property
+    def lead(self) -> np.ndarray:
+        return self.task.lead[0]
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.task.rngs[0] = self.np_random
+        options = options or {}
+        seeds = [options["traj_seed"]] if "traj_seed" in options else None
+        obs = self.task.reset([0], seeds, [options.get("shape")])
+        self.trail = []
+        return obs[0], {"traj_seed": int(self.task.traj_seeds[0]), "shape": self.task.shapes[0]}
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.task.step(action)
+        term, trunc = bool(terminated[0]), bool(truncated[0])
+        out = {"distance": float(info["distance"][0]),
+               "reward_terms": {k: float(v[0]) for k, v in info["reward_terms"].items()},
+               "self_collision": bool(info["self_collision"][0]),
+               "collision_depth": float(info["collision_depth"][0]),
+               "reachable": bool(info["reachable"][0]), "lead": info["lead"][0].copy()}
+        failure = failure_of(info, 0, term)
+        if failure:
+            out["failure"] = failure
+            out["message"] = (f"{failure} at t={self.core.time[0]:.2f}s "
+                              f"(trajectory seed {self.task.traj_seeds[0]})")
+        if self.render_mode is not None:
+            self.trail.append(self.core.target()[0][0].copy())
+        if self.render_mode == "human":
+            self.render()
+        return obs[0], float(reward[0]), term, trunc, out
+
+    # --- rendering -------------------------------------------------------------------------
+    def render(self):
+        import mujoco
+
+        self._render_data = self.core.get_data(0, self._render_data)
+        if self.render_mode == "human":
+            import mujoco.viewer
+
+            if self._viewer is None:
+                self._viewer = mujoco.viewer.launch_passive(self.core.model, self._render_data)
+            self._viewer.sync()
+            return None
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.core.model, self._height, self._width)
+        r = self._renderer
+        r.update_scene(self._render_data, camera="workspace")
+        scene = r.scene
+        for p in self.trail[-40:]:  # a short trail behind the target marker
+            if scene.ngeom >= scene.maxgeom:
+                break
+            mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
+                                np.array([0.006, 0, 0]), p, np.eye(3).ravel(),
+                                np.array([1.0, 0.4, 0.4, 0.5], dtype=np.float32))
+            scene.ngeom += 1
+        return r.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+
+PandaLeadEnv.__doc__ += textwrap.indent(arguments_table(), "    ") + "\n"

@@ -1,0 +1,260 @@
+"""Per-rollout metrics and the paired statistics over seeds: numbers only (no figures, no
+terminal output), so any script can import them cheaply.
+
+Every metric is computed per rollout; two sets are paired by seed. For each metric: per set
+mean, sample std and median; for the paired differences B - A the mean and the median, each
+with a 95% percentile-bootstrap CI, the share of seeds where B is better, and a Wilcoxon
+signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0 (and at least
+MIN_PAIRS_FOR_CLAIM pairs back it). Every definition, exactly as computed: docs/metrics.md.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from ..rollout import Rollout
+
+NAN = float("nan")
+
+
+LOWER, HIGHER = "lower", "higher"
+
+
+@dataclass(frozen=True)
+class Metric:
+    key: str
+    label: str  # "{band}" / "{tight}" are filled with the band widths in cm
+    fmt: str
+    better: str  # LOWER or HIGHER: which direction counts as an improvement
+
+
+METRICS = (
+    Metric("mean_err", "mean error (cm)", ".2f", LOWER),
+    Metric("rmse", "RMSE (cm)", ".2f", LOWER),
+    Metric("max_err", "max error (cm)", ".2f", LOWER),
+    Metric("p95_err", "p95 error (cm)", ".2f", LOWER),
+    Metric("settled_err", "settled mean error (cm)", ".2f", LOWER),
+    Metric("in_band", "time within {band} cm (%)", ".1f", HIGHER),
+    Metric("in_band_tight", "time within {tight} cm (%)", ".1f", HIGHER),
+    Metric("in_reach_err", "in-reach error (cm)", ".2f", LOWER),
+    Metric("out_reach_err", "out-of-reach error (cm)", ".2f", LOWER),
+    Metric("in_band_reachable", "within {band} cm on reachable (%)", ".1f", HIGHER),
+    Metric("jerk_rms", "jerk RMS (m/s^3)", ".1f", LOWER),
+    Metric("self_collision", "self-collision time (%)", ".2f", LOWER),
+)
+
+
+BY_KEY = {m.key: m for m in METRICS}
+
+
+# Out-of-reach time only happens on some seeds, so its mean is over fewer rollouts than n:
+# the row label says over how many.
+COUNTED = {"out_reach_err"}
+
+
+# Below this many pairs a percentile-bootstrap CI is too narrow to back a claim.
+MIN_PAIRS_FOR_CLAIM = 10
+
+
+def mean_or_nan(x: np.ndarray) -> float:
+    return float(np.mean(x)) if len(x) else NAN
+
+
+def rollout_metrics(r: Rollout, settle_time: float = 0.5, band_cm: float = 5.0,
+                    tight_band_cm: float = 2.0) -> dict[str, float]:
+    """Per-rollout metrics; NaN where a metric has no steps to average over."""
+    err = r.error
+    reach = np.asarray(r.reachable, dtype=bool)
+    ee = np.asarray(r.ee_pos, dtype=float)
+    if len(ee) >= 4:
+        j = np.diff(ee, n=3, axis=0) / r.dt**3
+        jerk = float(np.sqrt(np.mean(np.sum(j**2, axis=1))))
+    else:
+        jerk = NAN
+    return {
+        "mean_err": mean_or_nan(err) * 100,
+        "rmse": float(np.sqrt(np.mean(err**2))) * 100,
+        "max_err": float(np.max(err)) * 100,
+        "p95_err": float(np.percentile(err, 95)) * 100,
+        "settled_err": mean_or_nan(err[np.asarray(r.t) >= settle_time]) * 100,
+        "in_band": 100.0 * mean_or_nan(err < band_cm / 100.0),
+        "in_band_tight": 100.0 * mean_or_nan(err < tight_band_cm / 100.0),
+        "in_reach_err": mean_or_nan(err[reach]) * 100,
+        "out_reach_err": mean_or_nan(err[~reach]) * 100,
+        "in_band_reachable": 100.0 * mean_or_nan(err[reach] < band_cm / 100.0),
+        "jerk_rms": jerk,
+        "self_collision": 100.0 * mean_or_nan(np.asarray(r.self_collision, dtype=float)),
+    }
+
+
+def peak_speed(r: Rollout) -> float:
+    """The target's peak speed over the episode, m/s: max over steps of |target_vel|."""
+    return float(np.max(np.linalg.norm(np.asarray(r.target_vel, dtype=float), axis=1)))
+
+
+def bootstrap_ci(values, stat: Callable = np.mean, n_boot: int = 10000,
+                 seed: int = 0) -> tuple[float, float]:
+    """95% percentile-bootstrap CI of stat(values), resampling values with replacement.
+
+    NaN for fewer than 2 finite values: resampling one value would fake a zero-width CI.
+    The same seed draws the same resamples, so mean and median CIs use the same draws."""
+    d = np.asarray(values, dtype=float)
+    d = d[np.isfinite(d)]
+    if len(d) < 2:
+        return NAN, NAN
+    rng = np.random.default_rng(seed)
+    out = np.empty(n_boot)
+    chunk = max(1, 2_000_000 // len(d))  # bounded memory at n = 1000 and 10000 resamples
+    for i in range(0, n_boot, chunk):
+        k = min(chunk, n_boot - i)
+        out[i:i + k] = stat(d[rng.integers(0, len(d), size=(k, len(d)))], axis=1)
+    lo, hi = np.percentile(out, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def paired_ci(deltas, n_boot: int = 10000, seed: int = 0) -> tuple[float, float]:
+    """95% percentile-bootstrap CI of the mean paired difference."""
+    return bootstrap_ci(deltas, np.mean, n_boot, seed)
+
+
+def median_ci(deltas, n_boot: int = 10000, seed: int = 0) -> tuple[float, float]:
+    """95% percentile-bootstrap CI of the median paired difference."""
+    return bootstrap_ci(deltas, np.median, n_boot, seed)
+
+
+def shown(ci: tuple[float, float]) -> bool:
+    """A difference is shown when its 95% CI excludes zero (an n/a CI shows nothing)."""
+    lo, hi = ci
+    return bool(np.isfinite(lo) and np.isfinite(hi) and (lo > 0 or hi < 0))
+
+
+def wilcoxon_p(deltas) -> float:
+    """Two-sided Wilcoxon signed-rank p-value; NaN when undefined (n < 2 or all zero)."""
+    d = np.asarray(deltas, dtype=float)
+    d = d[np.isfinite(d)]
+    if len(d) < 2 or not np.any(d != 0):
+        return NAN
+    with warnings.catch_warnings():
+        # scipy warns about small n / ties; the p-value is still the right one to report.
+        warnings.simplefilter("ignore")
+        try:
+            return float(stats.wilcoxon(d).pvalue)
+        except ValueError:
+            return NAN
+
+
+def n_improved(va: np.ndarray, vb: np.ndarray, better: str) -> int:
+    """Seeds (both values finite) where B is strictly better than A; ties are not improved."""
+    ok = np.isfinite(va) & np.isfinite(vb)
+    return int(np.sum(vb[ok] < va[ok]) if better == LOWER else np.sum(vb[ok] > va[ok]))
+
+
+@dataclass
+class Row:
+    """One metric over a group of paired seeds."""
+
+    key: str
+    label: str
+    better: str  # LOWER or HIGHER
+    mean_a: float
+    std_a: float
+    median_a: float
+    mean_b: float
+    std_b: float
+    median_b: float
+    n_a: int  # rollouts where the metric is defined
+    n_b: int
+    n_pairs: int  # seeds where both are defined: what the differences use
+    delta: float  # mean of B - A
+    ci: tuple[float, float]
+    median_delta: float  # median of B - A
+    median_ci: tuple[float, float]
+    improved: int  # seeds where B is better than A
+    p: float
+
+    @property
+    def share_improved(self) -> float:
+        return self.improved / self.n_pairs if self.n_pairs else NAN
+
+
+def _stats(v: np.ndarray) -> tuple[float, float, float, int]:
+    """(mean, sample std, median, n) of the finite values."""
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return NAN, NAN, NAN, 0
+    # Sample std (ddof=1): the spread across seeds; undefined for a single rollout.
+    std = float(v.std(ddof=1)) if len(v) > 1 else NAN
+    return float(v.mean()), std, float(np.median(v)), len(v)
+
+
+def metric_label(m: Metric, band_cm: float = 5.0, tight_band_cm: float = 2.0) -> str:
+    return m.label.format(band=f"{band_cm:g}", tight=f"{tight_band_cm:g}")
+
+
+def summarize(
+    ma: dict[int, dict[str, float]], mb: dict[int, dict[str, float]], seeds: list[int],
+    label_a: str = "A", label_b: str = "B", n_boot: int = 10000, ci_seed: int = 0,
+    band_cm: float = 5.0, tight_band_cm: float = 2.0,
+) -> list[Row]:
+    """One Row per metric over the given paired seeds."""
+    rows = []
+    for m in METRICS:
+        va = np.array([ma[s][m.key] for s in seeds], dtype=float)
+        vb = np.array([mb[s][m.key] for s in seeds], dtype=float)
+        mean_a, std_a, med_a, n_a = _stats(va)
+        mean_b, std_b, med_b, n_b = _stats(vb)
+        d = (vb - va)[np.isfinite(va) & np.isfinite(vb)]
+        label = metric_label(m, band_cm, tight_band_cm)
+        if m.key in COUNTED:
+            n = len(seeds)
+            same = n_a == n_b
+            label += f" ({n_a}/{n})" if same else f" ({label_a} {n_a}/{n}, {label_b} {n_b}/{n})"
+        rows.append(Row(
+            m.key, label, m.better, mean_a, std_a, med_a, mean_b, std_b, med_b, n_a, n_b,
+            len(d), mean_or_nan(d), paired_ci(d, n_boot, ci_seed),
+            float(np.median(d)) if len(d) else NAN, median_ci(d, n_boot, ci_seed),
+            n_improved(va, vb, m.better), wilcoxon_p(d)))
+    return rows
+
+
+def claim(row: Row, label_b: str = "B") -> str:
+    """One line: the mean and median differences, each 'shown' (95% CI excludes 0 and at least
+    MIN_PAIRS_FOR_CLAIM pairs) or 'not shown', and the share of seeds improved."""
+    fmt = BY_KEY[row.key].fmt
+
+    def part(name: str, value: float, ci: tuple[float, float]) -> str:
+        if not np.isfinite(value):
+            return f"{name} diff n/a"
+        verdict = "shown" if shown(ci) else "not shown"
+        if row.n_pairs < MIN_PAIRS_FOR_CLAIM:
+            verdict = f"not shown (only {row.n_pairs} pairs, fewer than {MIN_PAIRS_FOR_CLAIM})"
+        return f"{name} diff {fmt_num(value, fmt, True)} {fmt_ci(ci, fmt)} {verdict}"
+
+    share = (f"{label_b} better on {row.improved}/{row.n_pairs} seeds "
+             f"({100 * row.share_improved:.0f}%)" if row.n_pairs else "no pairs")
+    return (f"{row.label}, {row.better} is better: {part('mean', row.delta, row.ci)}; "
+            f"{part('median', row.median_delta, row.median_ci)}; {share}")
+
+
+def fmt_num(x: float, fmt: str, sign: bool = False) -> str:
+    if not np.isfinite(x):
+        return "n/a"
+    return format(x, ("+" if sign else "") + fmt)
+
+
+def fmt_ci(ci: tuple[float, float], fmt: str) -> str:
+    lo, hi = (fmt_num(c, fmt, True) for c in ci)
+    return "[n/a]" if lo == "n/a" else f"[{lo}, {hi}]"
+
+
+def diff_text(value: float, ci: tuple[float, float], fmt: str = ".2f", verdict: bool = True
+              ) -> str:
+    """'+1.23 [+0.45, +2.01] shown': a paired difference, its 95% CI and whether it is shown
+    (the studies' tables use it)."""
+    text = f"{fmt_num(value, fmt, True)} {fmt_ci(ci, fmt)}"
+    return text + (" shown" if shown(ci) else " not shown") if verdict else text

@@ -1,0 +1,185 @@
+"""`LeadTask`: N episodes of the lead task on one `ArmBatch`, the code every env runs.
+
+The single env (env.py), Gymnasium's vector env (vector.py) and SB3's VecEnv (sb3_vecenv.py)
+are thin views over it, which is why their episodes are bit-identical for the same trajectory
+seeds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import trajectory
+from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, obs_layout
+from .core import N_JOINTS, ArmBatch, IKConfig, reachable
+from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
+
+
+class LeadTask:
+    """N episodes of the lead task on one `ArmBatch`: the code both envs run.
+
+    ``rngs[i]`` is episode slot i's generator: it draws slot i's training trajectories and its
+    observation noise, so a slot's episodes depend on its own stream alone.
+    """
+
+    def __init__(self, config: EnvConfig, n: int, nthread: int = 0):
+        self.config = c = config
+        self.n = n
+        self.layout = obs_layout(c.obs_features)
+        self.core = ArmBatch(n, IKConfig(iters=c.ik_iters, clearance=c.ik_clearance), nthread=nthread)
+        self.dt = self.core.dt
+        self.obs_dim = self.layout[-1][2]
+        self._noise_std = np.zeros(self.obs_dim)
+        self._inv_scale = np.ones(self.obs_dim)
+        for f, a, b in self.layout:
+            self._noise_std[a:b] = c.obs_noise.get(f, 0.0)
+            self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
+        self._noisy = np.flatnonzero(self._noise_std)
+        self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
+        self.rngs = [np.random.default_rng() for _ in range(n)]
+        self.action_dim = 3 if c.action == "lead" else N_JOINTS
+        self.prev_action = np.zeros((n, self.action_dim))
+        self.lead = np.zeros((n, 3))
+        self.ee_vel = np.zeros((n, 3))
+        self._prev_ee = np.zeros((n, 3))
+        self.traj_seeds = np.zeros(n, dtype=np.int64)
+        self.shapes = [""] * n
+        self.trajs: list = [None] * n
+        self._reachable = np.ones((n, c.episode_steps + 1), dtype=bool)
+        self._raw = np.zeros((n, self.obs_dim))
+        self._all = np.arange(n)
+        # Latency: the last obs_delay+1 observations and action_delay+1 actions per slot, newest
+        # first; each slot reads the entry of its own delay (fixed, or drawn per episode).
+        self._delayed = bool(c.obs_delay or c.action_delay)
+        self._obs_hist = np.zeros((n, c.obs_delay + 1, self.obs_dim), dtype=np.float32)
+        self._act_hist = np.zeros((n, c.action_delay + 1, self.action_dim))
+        self.obs_delay = np.full(n, c.obs_delay)
+        self.action_delay = np.full(n, c.action_delay)
+        # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
+        self.speed_cap = c.max_peak_speed
+
+    def set_speed_cap(self, cap: float | None) -> None:
+        """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any)."""
+        self.speed_cap = cap
+
+    def reset(self, ids=None, traj_seeds=None, shapes=None) -> np.ndarray:
+        """Start new episodes in slots ``ids`` (default all); returns the observation of all.
+        Trajectory seeds (and shapes) default to draws from each slot's own generator."""
+        ids = self._all if ids is None else np.asarray(ids, dtype=np.int64).reshape(-1)
+        trajs = []
+        for j, i in enumerate(ids):
+            shape = None if shapes is None else shapes[j]
+            if traj_seeds is None or traj_seeds[j] is None:
+                traj = self._draw(i, shape)
+            else:
+                traj = trajectory.sample(int(traj_seeds[j]), shape)
+            seed = traj.seed
+            self.trajs[i], self.traj_seeds[i], self.shapes[i] = traj, seed, traj.shape
+            trajs.append(traj)
+        core = self.core
+        core.reset(ids, trajs, self.config.episode_steps)
+        self._reachable[ids] = reachable(core.target_pos[ids])
+        self.prev_action[ids] = 0.0
+        self.lead[ids] = 0.0
+        self.ee_vel[ids] = 0.0
+        self._prev_ee[ids] = core.tip_pos[ids]
+        if not self._delayed:
+            return self.observe(ids)
+        if self.config.random_delay:
+            for i in ids:
+                self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
+                self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
+        self._act_hist[ids] = 0.0  # before the episode the lead was zero (classical)
+        self._obs_hist[ids] = self.observe(ids)[ids, None, :]  # before it, the arm stood still
+        return self._obs_hist[self._all, self.obs_delay]
+
+    def _draw(self, i: int, shape: str | None):
+        """A training trajectory from slot i's own stream (under the speed cap, if any)."""
+        while True:
+            seed = int(self.rngs[i].integers(TRAIN_SEED_LOW, TRAIN_SEED_HIGH))
+            pick = shape
+            if pick is None and self.config.shapes is not None:
+                pick = self.config.shapes[int(self.rngs[i].integers(len(self.config.shapes)))]
+            traj = trajectory.sample(seed, pick)
+            if self.speed_cap is None or traj.peak_speed <= self.speed_cap:
+                return traj
+
+    def observe(self, ids=None, target=None) -> np.ndarray:
+        """The (scaled, float32) observation of every slot; noise is drawn for slots ``ids``
+        only (default all): a slot's generator advances only when its observation is used.
+        ``target``: the core's current (pos, vel, acc), when the caller already has it."""
+        core, raw = self.core, self._raw
+        pos, vel, acc = core.target() if target is None else target
+        source = {"ee_pos": core.tip_pos, "ee_vel": self.ee_vel, "target_pos": pos,
+                  "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
+                  "joint_vel": core.qvel, "prev_action": self.prev_action}
+        for f, a, b in self.layout:
+            raw[:, a:b] = source[f]
+        if len(self._noisy):
+            std = self._noise_std[self._noisy]
+            for i in self._all if ids is None else ids:
+                raw[i, self._noisy] += self.rngs[i].normal(0.0, std)
+        return (raw * self._inv_scale).astype(np.float32)
+
+    def step(self, actions: np.ndarray):
+        """One control step of every slot -> (obs, reward, terminated, truncated, info), where
+        info holds (N, ...) arrays: distance, reward_terms, self_collision, collision_depth,
+        reachable, lead, unstable."""
+        action = np.array(actions, dtype=np.float64).reshape(self.n, self.action_dim)
+        if not np.isfinite(action).all():
+            bad = np.flatnonzero(~np.isfinite(action).all(axis=1))
+            raise ValueError(f"action must be finite, got {action[bad[0]]} (trajectory seed "
+                             f"{self.traj_seeds[bad[0]]})")
+        np.clip(action, -1.0, 1.0, out=action)
+        core = self.core
+        applied = action
+        if self._delayed:
+            self._act_hist[:, 1:] = self._act_hist[:, :-1]
+            self._act_hist[:, 0] = action
+            applied = self._act_hist[self._all, self.action_delay]
+        if self.action_dim == 3:
+            self.lead = applied * self.config.max_lead
+            core.step(self.lead)
+        else:
+            core.step(joint_offset=applied * self.config.max_joint_offset)
+        ee = core.tip_pos
+        np.subtract(ee, self._prev_ee, out=self.ee_vel)
+        self.ee_vel /= self.dt
+        self._prev_ee[:] = ee
+        now = core.target()  # (pos, vel, acc) after the step: the distance and the observation
+        dist = np.linalg.norm(ee - now[0], axis=1)
+        unstable = core.unstable
+        terminated = unstable | (core.self_collision & self.config.terminate_on_collision)
+        truncated = ~terminated & (core.step_count >= self.config.episode_steps)
+        w, da = self._w, action - self.prev_action
+        terms = {
+            "distance": -w["distance"] * dist,
+            "tracking": w["tracking"] * np.exp(-dist / self.config.tracking_scale),
+            "action": -w["action"] * np.einsum("ij,ij->i", action, action),
+            "action_change": -w["action_change"] * np.einsum("ij,ij->i", da, da),
+            "collision": -w["collision"] * core.collision_depth,
+            "alive": np.full(self.n, w["alive"]),
+            "termination": np.where(terminated, -w["termination"], 0.0),
+        }
+        if unstable.any():  # a blown-up arm earns only its termination cost
+            for k in REWARD_TERMS[:-1]:
+                terms[k] = np.where(unstable, 0.0, terms[k])
+        reward = sum(terms.values())
+        self.prev_action = action
+        obs = self.observe(target=now)
+        if self._delayed:
+            self._obs_hist[:, 1:] = self._obs_hist[:, :-1]
+            self._obs_hist[:, 0] = obs
+            obs = self._obs_hist[self._all, self.obs_delay]
+        obs[unstable] = 0.0  # never hand NaNs to the learner
+        k = np.minimum(core.step_count, self.config.episode_steps)
+        info = {"distance": dist, "reward_terms": terms, "self_collision": core.self_collision,
+                "collision_depth": core.collision_depth, "unstable": unstable,
+                "reachable": self._reachable[self._all, k], "lead": self.lead}
+        return obs, reward, terminated, truncated, info
+
+
+def failure_of(info: dict, i: int, terminated: bool) -> str | None:
+    if not terminated:
+        return None
+    return "unstable" if info["unstable"][i] else "self_collision"
