@@ -15,8 +15,8 @@ import pytest
 from panda_lead import metrics, rollout
 from panda_lead.cli import metrics as metrics_cli
 from panda_lead.errors import UserError
-from panda_lead.metrics import pairing as compare_module
 from panda_lead.metrics import figures
+from panda_lead.metrics import pairing as compare_module
 from panda_lead.rollout import Rollout
 
 REPO = Path(__file__).resolve().parents[1]

@@ -26,6 +26,7 @@ from rich.table import Table
 
 from .. import rollout
 from ..errors import UserError, exit_on_user_error
+from ..metrics.figures import headline_data, plot, plot_headline
 from ..metrics.pairing import (
     Comparison,
     check_compatible,
@@ -39,7 +40,6 @@ from ..metrics.pairing import (
     seed_set_title,
     set_labels,
 )
-from ..metrics.figures import headline_data, plot, plot_headline
 from ..metrics.stats import BY_KEY, Row, claim, fmt_ci, fmt_num
 
 
