@@ -29,9 +29,21 @@ OBS_SCALE = {
     "ee_pos": 1.0, "ee_vel": 2.5, "target_pos": 1.0, "target_vel": 2.5, "target_acc": 30.0,
     "joint_pos": 1.0, "joint_vel": 2.5, "prev_action": 1.0,
 }
-DEFAULT_OBS = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc")
+# The observation layouts of the reference ladder (the presets build on them).
+OBS_12 = ("ee_pos", "ee_vel", "target_pos", "target_vel")
+OBS_15 = OBS_12 + ("target_acc",)
+OBS_29 = OBS_15 + ("joint_pos", "joint_vel")
+DEFAULT_OBS = OBS_15
 REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", "alive",
                 "termination")
+
+
+ACTIONS = {"lead": 3, "joint": N_JOINTS}
+
+
+def action_dim(action: str) -> int:
+    """The action's size: a 3-D Cartesian lead, or one value per joint."""
+    return ACTIONS[action]
 
 
 def check_features(features) -> tuple[str, ...]:

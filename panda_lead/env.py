@@ -109,6 +109,12 @@ class PandaLeadEnv(gym.Env):
         self._renderer = self._viewer = self._render_data = None
         self.trail: list[np.ndarray] = []
 
+    def set_stream(self, stream: np.random.SeedSequence) -> None:
+        """Draw training trajectories (and observation noise) from this stream from now on: how
+        a training vec env gives env i the repo's stream ``SeedSequence(s).spawn(n)[i]``."""
+        self.np_random = np.random.default_rng(stream)
+        self.task.rngs[0] = self.np_random
+
     def set_speed_cap(self, cap: float | None) -> None:
         """See LeadTask.set_speed_cap (the speed curriculum calls it through env_method)."""
         self.task.set_speed_cap(cap)

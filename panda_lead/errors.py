@@ -8,6 +8,7 @@ which is why ``UserError`` is not a ``ValueError`` (catching those would hide re
 from __future__ import annotations
 
 import difflib
+import re
 import sys
 from collections.abc import Callable, Iterable
 from functools import wraps
@@ -23,6 +24,18 @@ def did_you_mean(name: object, valid: Iterable[str]) -> str:
     close = difflib.get_close_matches(str(name), valid, n=1)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     return f"{hint} (valid: {', '.join(valid)})"
+
+
+PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
+
+
+def check_plain_name(value: str, flag: str) -> str:
+    """A file or folder name without separators or a leading dot (no ../, no /abs): the one
+    rule for run names, archive names, rollout prefixes and study names."""
+    if not isinstance(value, str) or not PLAIN_NAME.fullmatch(value) or len(value) > 200:
+        raise UserError(f"{flag} must be a plain name (letters, digits, _ . + -, not starting "
+                        f"with a dot, at most 200 characters), got {value!r}")
+    return value
 
 
 def exit_on_user_error(main: Callable) -> Callable:

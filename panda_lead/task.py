@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import trajectory
-from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, obs_layout
-from .core import N_JOINTS, ArmBatch, IKConfig, reachable
+from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, action_dim, obs_layout
+from .core import ArmBatch, IKConfig, reachable
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 
 
@@ -37,7 +37,7 @@ class LeadTask:
         self._noisy = np.flatnonzero(self._noise_std)
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
         self.rngs = [np.random.default_rng() for _ in range(n)]
-        self.action_dim = 3 if c.action == "lead" else N_JOINTS
+        self.action_dim = action_dim(c.action)
         self.prev_action = np.zeros((n, self.action_dim))
         self.lead = np.zeros((n, 3))
         self.ee_vel = np.zeros((n, 3))

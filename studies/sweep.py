@@ -98,7 +98,7 @@ def shown(url: str) -> str:
 
 def take_password(args: Args) -> Args:
     """Move a password out of --storage into PGPASSWORD, where libpq (and so every worker this
-    starts, through its environment) finds it, and out of sys.argv, which training.py writes to
+    starts, through its environment) finds it, and out of sys.argv, which the training loop writes to
     each trial's command.txt and which the workers' command lines are built from. The shell
     that started this process still shows it in `ps`: PGPASSWORD or ~/.pgpass avoid that."""
     from sqlalchemy.engine import URL
@@ -206,13 +206,14 @@ def objective(trial, args: Args) -> float:
     import optuna
 
     from panda_lead import training
+    from panda_lead.cli.train import parse_args
 
     flags, params = suggest(trial, args)
     run_root = SWEEPS_DIR / args.name / "runs"
     argv = [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
             "--runs-dir", str(run_root), "--name", f"t{trial.number:04d}", "--no-progress",
             *shlex.split(args.train_args)]
-    targs = training.parse_args(argv)
+    targs = parse_args(argv)
     pruned = []
 
     def on_eval(step: int, res: dict) -> bool:
@@ -223,7 +224,10 @@ def objective(trial, args: Args) -> float:
         return True
 
     t0 = time.time()
-    run_dir = training.train(targs, on_eval=on_eval)
+    try:
+        run_dir = training.train(targs, on_eval=on_eval)
+    except training.TrainingInterrupted as exc:  # saved; the worker stops as train.py would
+        raise SystemExit(128 + exc.signum) from None
     trial.set_user_attr("run_dir", str(run_dir))
     trial.set_user_attr("wall_time_s", round(time.time() - t0, 1))
     if pruned:
@@ -343,7 +347,6 @@ def report(args: Args, name: str) -> None:
 
 
 def archive(args: Args, name: str) -> None:
-    import json
 
     import optuna
 
@@ -366,8 +369,7 @@ def archive(args: Args, name: str) -> None:
     if not (run_dir / "config.json").is_file():
         raise UserError(f"trial #{best.number}'s run folder {run_dir} is not here: run --archive "
                         "on the machine that ran it, or copy the folder to that path first")
-    config = json.loads((run_dir / "config.json").read_text())
-    path = training.archive_model(run_dir, args.archive_as or name, config)
+    path = training.archive_model(run_dir, args.archive_as or name)
     print(f"best trial #{best.number} ({best.value:.2f} cm, {best.params}) -> {path}")
 
 

@@ -290,17 +290,18 @@ def test_speed_cap_filters_training_draws_only():
 
 def test_speed_curriculum_raises_the_cap_linearly_then_lifts_it():
     from panda_lead import training
+    from panda_lead.cli.train import parse_args
 
     assert training.speed_cap(0, 0.8, 1000) == pytest.approx(0.8)
     assert training.speed_cap(500, 0.8, 1000) == pytest.approx(0.8 + (trajectory.MAX_SPEED - 0.8) / 2)
     assert training.speed_cap(1000, 0.8, 1000) is None
-    args = training.parse_args(["--curriculum-steps", "300000", "--curriculum-start-speed", "0.6"])
+    args = parse_args(["--curriculum-steps", "300000", "--curriculum-start-speed", "0.6"])
     assert args.curriculum_steps == 300000 and args.curriculum_start_speed == 0.6
     # On by default; the presets (the reference ladder) and the reference settings run without.
-    assert training.parse_args([]).curriculum_steps == training.TrainConfig().curriculum_steps > 0
-    assert training.parse_args(["--preset", "v5"]).curriculum_steps == 0
-    assert training.parse_args(["--reference-hparams"]).curriculum_steps == 0
-    assert training.parse_args(["--preset", "v5", "--curriculum-steps", "1000"]).curriculum_steps == 1000
+    assert parse_args([]).curriculum_steps == training.TrainConfig().curriculum_steps > 0
+    assert parse_args(["--preset", "v5"]).curriculum_steps == 0
+    assert parse_args(["--reference-hparams"]).curriculum_steps == 0
+    assert parse_args(["--preset", "v5", "--curriculum-steps", "1000"]).curriculum_steps == 1000
     # A run folder from before the curriculum existed resumes without one.
     assert training.TrainConfig.from_dict({"n_envs": 4}).curriculum_steps == 0
 

@@ -80,7 +80,7 @@ def _copy(src: Path, dst: Path, side: dict | None = "same") -> Path:
     ("corrupt_member", "cannot load model"),
     ("changed_zip", "SHA-256 differs from its sidecar's"),
     ("no_sidecar", "no sidecar"),
-    ("mismatched_sidecar", "the sidecar's env config differs from the one the model was trained"),
+    ("mismatched_sidecar", "the sidecar does not belong to this model"),
 ])
 def test_bad_model_files_get_one_clear_message(untrained_model, tmp_path, case, message):
     bad = tmp_path / "bad.zip"
@@ -199,12 +199,15 @@ def test_a_hostile_model_file_runs_nothing(untrained_model, tmp_path, via):
 
         run_dir = tmp_path / "run"
         (run_dir / "checkpoints").mkdir(parents=True)
-        (run_dir / "config.json").write_text(json.dumps(training.TrainConfig(
-            n_envs=2, n_steps=64, batch_size=64, timesteps=256, eval_freq=0).to_dict()))
+        config = training.TrainConfig(n_envs=2, n_steps=64, batch_size=64, timesteps=256,
+                                      eval_freq=0).to_dict()
+        (run_dir / "config.json").write_text(json.dumps(config))
         ckpt = run_dir / "checkpoints" / "model_128_steps.zip"
         ckpt.write_bytes(evil.read_bytes())
         side = json.loads(evil.with_suffix(".json").read_text())
-        ckpt.with_suffix(".json").write_text(json.dumps({**side, "timesteps": 128}))
+        ckpt.with_suffix(".json").write_text(json.dumps({**side, "timesteps": 128,
+                                                         "train_config": config}))
+        bind_sidecar(ckpt)  # the attacker vouches for the file: the load itself must refuse it
         out = run(ROOT / "train.py", "--resume", run_dir, "--no-progress", cwd=tmp_path)
         assert out.returncode == 2 and "cannot load model" in out.stderr, out.stderr
     assert not marker.exists()

@@ -16,9 +16,11 @@ from pathlib import Path
 
 import pytest
 
+from panda_lead.cli.train import parse_args
 from panda_lead.config import EnvConfig
 from panda_lead.errors import UserError
-from panda_lead.training import PRESETS, TrainConfig, parse_args
+from panda_lead.training import PRESETS, TrainConfig
+from panda_lead.training.loop import check_device
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--n-envs", "2", "--n-steps", "64", "--batch-size", "64", "--n-epochs", "1",
@@ -298,7 +300,6 @@ def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_pa
 def test_a_cuda_device_that_is_not_there_is_a_clear_error():
     import torch
 
-    from panda_lead import training
 
     class Torch:  # torch, with or without a GPU
         device = staticmethod(torch.device)
@@ -307,8 +308,8 @@ def test_a_cuda_device_that_is_not_there_is_a_clear_error():
             self.cuda = type("cuda", (), {"is_available": staticmethod(lambda: gpu)})
 
     with pytest.raises(UserError, match="no CUDA GPU"):
-        training._check_device("cuda", Torch(gpu=False))
+        check_device("cuda", Torch(gpu=False))
     with pytest.raises(UserError, match="not a torch device"):
-        training._check_device("gpu0", Torch(gpu=True))
-    training._check_device("cuda:0", Torch(gpu=True))
-    training._check_device("cpu", Torch(gpu=False))
+        check_device("gpu0", Torch(gpu=True))
+    check_device("cuda:0", Torch(gpu=True))
+    check_device("cpu", Torch(gpu=False))

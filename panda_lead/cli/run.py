@@ -45,7 +45,7 @@ class Args:
     controller: Literal["policy", "classical", "analytic"] = "policy"
     """Which lead: a trained policy, none (classical), or v*tau + a*tau^2/2 (analytic)."""
     model: Path | None = None
-    """Policy zip with its sidecar (default: the newest in archive/)."""
+    """Policy zip with its sidecar (default: archive/indep_v5.zip, the headline model)."""
     tau: float | None = None
     """Look-ahead of the analytic lead in seconds (default: the tuned value)."""
     shape: str | None = None
@@ -101,19 +101,17 @@ def _validate(args: Args):
 def _build(args: Args, overrides: dict):
     """-> (env, act_fn, meta) for the chosen controller; a policy's env comes from its sidecar."""
     from .. import controllers
+    from ..core import control_dt
     from ..env import PandaLeadEnv
-    from ..models import load_policy, newest_archived
+    from ..models import DEFAULT_MODEL, archived, load_policy
 
-    steps = int(round(args.duration * 100))
+    steps = int(round(args.duration / control_dt()))
     meta = {"controller": args.controller, "model": None}
     env_kwargs: dict = {}
     act = controllers.classical
     model = None
     if args.controller == "policy" or args.compare:
-        path = args.model or newest_archived()
-        if path is None:
-            raise UserError("no --model given and archive/ has no model; train one with "
-                            "`uv run train.py --archive NAME` or use --controller classical")
+        path = args.model or archived(DEFAULT_MODEL)
         model, env_kwargs, side = load_policy(path)
         meta["model"] = str(path)
         meta["model_sha256"] = side["model_sha256"]

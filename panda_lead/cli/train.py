@@ -1,0 +1,77 @@
+"""Train a PPO lead policy: `uv run train.py [--preset v5] [--timesteps N] [--archive NAME]`.
+
+One folder per run under runs/: config.json (the resolved config), command.txt, tb/
+(TensorBoard), checkpoints/, best_model.zip (lowest evaluation-set tracking error) and
+final_model.zip, each model with its sidecar. Ctrl-C or SIGTERM saves the model and prints how
+to resume (`--resume RUN_FOLDER`). `--preset NAME` starts from a preset; every flag given
+overrides it, and `--preset NAME --help` shows the preset's values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from ..errors import UserError, exit_on_user_error
+from ..training.config import (
+    REFERENCE_HPARAMS,
+    RESUME_MAY_CHANGE,
+    TrainArgs,
+    TrainConfig,
+    flag,
+    read_run_config,
+)
+from ..training.loop import TrainingInterrupted, train
+from ..training.presets import get_preset, preset_table
+
+
+def parse_args(argv: list[str], prog: str | None = None, description: str | None = None
+               ) -> TrainArgs:
+    """The command line -> TrainArgs. ``--preset NAME`` (or ``--resume RUN``: the run's
+    config) and ``--reference-hparams`` choose the defaults; every flag given overrides them,
+    even when it equals the plain default. ``--preset v5 --help`` shows v5's values."""
+    import tyro
+
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--preset")
+    pre.add_argument("--resume")
+    pre.add_argument("--reference-hparams", action="store_true")
+    known, _ = pre.parse_known_args(argv)
+    if known.resume and known.reference_hparams:
+        raise UserError("--reference-hparams changes what a run learns; --resume continues a "
+                        "run with its own config (start a new run instead)")
+    if known.resume:
+        base = read_run_config(Path(known.resume))
+    elif known.preset:
+        base = get_preset(known.preset)
+    else:
+        base = TrainConfig()
+    if known.reference_hparams:
+        base = dataclasses.replace(base, **REFERENCE_HPARAMS)
+    default = TrainArgs(**{f.name: getattr(base, f.name) for f in dataclasses.fields(TrainConfig)},
+                        reference_hparams=known.reference_hparams)
+    args = tyro.cli(TrainArgs, args=argv, default=default, prog=prog, description=description)
+    if known.resume:
+        changed = [f.name for f in dataclasses.fields(TrainConfig)
+                   if f.name not in RESUME_MAY_CHANGE and getattr(args, f.name) != getattr(base, f.name)]
+        if changed:
+            raise UserError(f"--resume continues the run with its own config; "
+                            f"{', '.join('--' + flag(c) for c in changed)} cannot change "
+                            "(start a new run instead)")
+    return args
+
+
+@exit_on_user_error
+def run(argv: list[str]) -> None:
+    description = f"{__doc__}\nPresets:\n{preset_table()}"
+    try:
+        train(parse_args(argv, prog="train.py", description=description))
+    except TrainingInterrupted as exc:
+        raise SystemExit(128 + exc.signum) from None
+
+
+def main(argv: list[str] | None = None) -> None:
+    import sys
+
+    run(sys.argv[1:] if argv is None else argv)

@@ -1,0 +1,165 @@
+"""The model archive: a run's best model becomes ``archive/NAME.zip`` with its sidecar
+(``NAME.json``, which the zip also carries) and a model card (``NAME.md``) whose snippet
+reproduces a number of the card exactly, from any folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..config import EnvConfig
+from ..controllers import make_policy
+from ..errors import UserError, check_plain_name
+from ..models import (
+    ARCHIVE_DIR,
+    archive_lock,
+    copy_with_sidecar,
+    file_sha256,
+    load_policy,
+    pair_state,
+)
+from ..rollout import record_many
+from ..seeds import QUICK_TEST_SEEDS
+from ..trajectory import SHAPES
+from .evaluation import evaluate
+
+
+def archive_path(name: str) -> Path:
+    return ARCHIVE_DIR / f"{check_plain_name(name, '--archive')}.zip"
+
+
+def check_archive_free(name: str, force: bool) -> None:
+    """UserError unless archive/NAME is free (or ``force``); says what is there."""
+    path = archive_path(name)
+    state = pair_state(path)
+    if state == "absent" or force:
+        return
+    if state == "valid":
+        raise UserError(f"{path} exists; choose another --archive name, or add --force to "
+                        "replace it")
+    raise UserError(f"{path} exists but {state}; restore its sidecar from the model with "
+                    f"`uv run eval.py --model {path} --restore-sidecar`, or add --force to "
+                    "replace it")
+
+
+def archive_model(run_dir: Path, name: str, force: bool = False, caveats: tuple[str, ...] = ()
+                  ) -> Path:
+    """Archive the run's best (else final) model as archive/NAME.zip: the same weights and
+    sidecar, plus quick-test metrics, the card's number and ``caveats``; then the card.
+    Holds the name's lock while it checks and writes, so of two runs archiving one name, the
+    second is refused with one line instead of replacing the first."""
+    src = Path(run_dir) / "best_model.zip"
+    if not src.is_file():
+        src = Path(run_dir) / "final_model.zip"
+    policy, env_config, side = load_policy(src)
+    test = evaluate(make_policy(policy), env_config, 500,
+                    episodes=[(s, None) for s in QUICK_TEST_SEEDS])
+    seed0 = card_number(policy, env_config)
+    dst = archive_path(name)
+    with archive_lock(dst):
+        check_archive_free(name, force)
+        extra = {"test_metrics": test, "test_seed0_mean_error_cm": seed0, "name": name,
+                 "source": str(src), **({"caveats": list(caveats)} if caveats else {})}
+        side = copy_with_sidecar(src, dst, extra)
+        write_card(dst, side)
+    return dst
+
+
+def card_number(policy, env_config: dict) -> float:
+    """Mean tracking error (cm) on test seed 0, 5 s: the number the model card reproduces."""
+    r = record_many(EnvConfig.from_dict(env_config).replace(episode_steps=500),
+                    make_policy(policy), [0])[0]
+    return float(100 * r.error.mean())
+
+
+CARD_SNIPPET = '''\
+import gymnasium as gym
+import numpy as np
+
+import panda_lead  # noqa: F401  (registers PandaLead-v0)
+from panda_lead.models import archived, load_policy
+
+# Weights only, never unpickled; found in ./archive or the archive shipped with the package.
+policy, env_config, sidecar = load_policy(archived("{name}"))
+e = gym.make("PandaLead-v0", **{{**env_config, "episode_steps": 500}})
+obs, _ = e.reset(seed=0, options={{"traj_seed": 0}})
+errors, done = [], False
+while not done:
+    action, _ = policy.predict(obs, deterministic=True)
+    obs, reward, terminated, truncated, info = e.step(action)
+    errors.append(info["distance"])
+    done = terminated or truncated
+print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {seed0:.6f} cm
+'''
+
+
+def write_card(zip_path: Path, side: dict) -> Path:
+    """archive/NAME.md: what the model is, its config, its test results, how to load it."""
+    from ..atomicio import atomic_write
+
+    name = zip_path.stem
+    train = side.get("train_config", {})
+    test = side.get("test_metrics", {})
+    env_rows = "\n".join(f"| {k} | {v} |" for k, v in sorted(side["env_config"].items()))
+    train_rows = "\n".join(f"| {k} | {v} |" for k, v in sorted(train.items()) if k != "env")
+    shape_rows = "\n".join(
+        f"| {s} | {test[f'{s}/mean_error_cm']:.2f} | {test[f'{s}/in_band_pct']:.1f} |"
+        for s in SHAPES if f"{s}/mean_error_cm" in test)
+    preset = train.get("preset")
+    from_preset = f" from preset `{preset}`" if preset else ""
+    origin = (f"Trained {side.get('timesteps', 0):,} steps{from_preset}, seed "
+              f"{train.get('seed', '?')}, {side.get('wall_time_s', '?')} s, code commit "
+              f"`{side.get('commit', '?')}`." if train else
+              f"Adopted from `{side.get('source', '?')}` (trained outside this repo's train.py).")
+    caveats = "".join(f"\n**Caveat.** {c}\n" for c in side.get("caveats", []))
+    action = side["env_config"].get("action", "lead")
+    what = {"lead": "a Cartesian lead added to the IK target of",
+            "joint": "a joint-goal residual added to the IK's joint goal in",
+            "joint_target": "the joint position targets directly (no IK in the loop) of"}[action]
+    seeds = f"{QUICK_TEST_SEEDS[0]}-{QUICK_TEST_SEEDS[-1]}"
+    policy = side.get("policy", {})
+    text = f"""# Model card: {name}
+
+A PPO policy (stable-baselines3, MLP {policy.get('net_arch', '?')}, {policy.get('activation_fn', '?')})
+that outputs {what} a classical IK+PD Franka Panda controller (`PandaLead-v0`).
+{origin}
+Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same sidecar and
+`model_sha256`, the zip's SHA-256), this card.
+{caveats}
+## Test results (quick test seeds {seeds}, 5 s episodes, shape drawn from the seed)
+
+| set | mean error (cm) | time in 5 cm band (%) |
+|---|---|---|
+| all | {test.get('mean_error_cm', float('nan')):.2f} | {test.get('in_band_pct', float('nan')):.1f} |
+{shape_rows}
+
+Test seed 0 alone: {side['test_seed0_mean_error_cm']:.6f} cm (the snippet below reproduces it).
+The full results (1,000 test seeds, paired with the baselines): README and docs/results.md.
+
+## Load it
+
+From any folder, once the project is installed (`uv sync`, or `pip install .`). `PPO.load`
+would unpickle objects stored in the zip (running any code a tampered file carries);
+`load_policy` rebuilds the policy from the sidecar the zip carries and reads only tensors
+(`torch.load(weights_only=True)`), after checking the zip's SHA-256.
+
+```python
+{CARD_SNIPPET.format(name=name, seed0=side['test_seed0_mean_error_cm'])}```
+
+## Env config
+
+| setting | value |
+|---|---|
+{env_rows}
+
+## Training config
+
+| setting | value |
+|---|---|
+{train_rows or '| (adopted: see the source) | |'}
+
+SHA-256 of the zip: `{side.get('model_sha256') or file_sha256(zip_path)}`
+"""
+    out = zip_path.with_suffix(".md")
+    with atomic_write(out, ".tmp.md") as tmp:
+        Path(tmp).write_text(text)
+    return out

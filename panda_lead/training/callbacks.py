@@ -1,0 +1,255 @@
+"""SB3 callbacks of a training run, and what they lean on: the signal flag, the run's clock, the
+progress.csv logger. Each callback is a plain module-level class that takes its settings in
+``__init__`` (as rl_zoo3's callbacks.py does)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+
+from .. import trajectory
+from ..controllers import classical, make_analytic, make_policy
+from .evaluation import evaluate
+
+
+def say(text: str) -> None:
+    """Print a line without tearing the progress bar."""
+    from tqdm.auto import tqdm
+
+    tqdm.write(text)
+    sys.stdout.flush()
+
+
+class RunClock:
+    """Wall time of a run across resumes: the seconds before this process (from the checkpoint's
+    sidecar) plus the seconds since it started."""
+
+    def __init__(self, before_s: float = 0.0):
+        self.before_s = float(before_s)
+        self.start = time.time()
+
+    def elapsed(self) -> float:
+        return self.before_s + time.time() - self.start
+
+
+class SignalFlag:
+    """SIGINT and SIGTERM set a flag that makes learn() stop at the next step (the model is then
+    saved); a second signal raises KeyboardInterrupt at once. Only in the main thread."""
+
+    def __init__(self):
+        self.received: int | None = None
+        self._old: dict = {}
+
+    def _handle(self, signum, frame):
+        if self.received is not None:
+            raise KeyboardInterrupt
+        self.received = signum
+        print(f"\n{signal.Signals(signum).name}: stopping at the next step and saving "
+              "(again to stop at once)", file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self._old.items():
+            signal.signal(s, h)
+        self._old = {}
+
+
+class TrackingEval(BaseCallback):
+    """Evaluates on the fixed evaluation set every ``config.eval_freq`` steps, logs cm figures
+    beside the two baselines, prints one line per evaluation and keeps the best model
+    (``save_best(model, timesteps, metrics)``). ``on_eval(timesteps, metrics)`` may return
+    False to stop the run (sweep.py's pruner). Ties keep the earlier model: only a strictly
+    lower error replaces the best."""
+
+    def __init__(self, config, run_dir: Path, clock: RunClock, save_best, on_eval=None):
+        super().__init__()
+        self.config, self.run_dir, self.clock = config, run_dir, clock
+        self.save_best, self.on_eval = save_best, on_eval
+        self.best = float("inf")
+        self.best_step: int | None = None
+        self.last_eval = 0
+        self.baselines: dict[str, dict] = {}
+
+    def _on_training_start(self) -> None:
+        self.last_eval = self.num_timesteps
+        config = self.config
+        if not config.eval_freq:
+            return
+        self.baselines = {
+            "classical": evaluate(classical, config.env, config.eval_steps),
+            # The analytic lead is a Cartesian lead: a joint-action run compares with it on the
+            # same task with the lead action (zero action is the same controller).
+            "analytic": evaluate(make_analytic(), config.env.replace(action="lead"),
+                                 config.eval_steps)}
+        best_file = self.run_dir / "best.json"
+        if best_file.is_file():  # resuming: keep the best so far
+            best = json.loads(best_file.read_text())
+            self.best, self.best_step = float(best["mean_error_cm"]), best.get("timesteps")
+
+    def _on_step(self) -> bool:
+        config = self.config
+        if config.eval_freq and self.num_timesteps - self.last_eval >= config.eval_freq:
+            res = self.run_eval()
+            if self.on_eval is not None and self.on_eval(self.num_timesteps, res) is False:
+                return False  # e.g. an Optuna pruner said stop
+            stop = config.stop_below_cm
+            if stop is not None and res["mean_error_cm"] < stop:
+                say(f"evaluation error {res['mean_error_cm']:.2f} cm < {stop} cm: stopping "
+                    f"at {self.num_timesteps} steps, {self.clock.elapsed():.0f} s")
+                return False
+        return True
+
+    def run_eval(self) -> dict:
+        self.last_eval = self.num_timesteps
+        res = evaluate(make_policy(self.model), self.config.env, self.config.eval_steps)
+        for k, v in res.items():
+            self.logger.record(f"eval/{k}", v)
+        # The baselines at every evaluation step, so they draw as lines across the run.
+        for name, base in self.baselines.items():
+            for k, v in base.items():
+                self.logger.record(f"eval_{name}/{k}", v)
+        self.logger.record("eval/wall_time_s", self.clock.elapsed())
+        self.logger.record("eval/timesteps", self.num_timesteps)
+        classical_cm = self.baselines["classical"]["mean_error_cm"]
+        self.logger.record("eval/improvement_over_classical_cm", classical_cm - res["mean_error_cm"])
+        new_best = res["mean_error_cm"] < self.best
+        if new_best:
+            self.best, self.best_step = res["mean_error_cm"], self.num_timesteps
+            self.save_best(self.model, self.num_timesteps, res)
+        self.logger.dump(self.num_timesteps)
+        a, c = self.baselines["analytic"], self.baselines["classical"]
+        say(f"step {self.num_timesteps:>10,}  error {res['mean_error_cm']:5.2f} cm  "
+            f"in 5 cm band {res['in_band_pct']:5.1f}%   (classical {classical_cm:.2f} cm / "
+            f"{c['in_band_pct']:.1f}%, analytic {a['mean_error_cm']:.2f} cm / "
+            f"{a['in_band_pct']:.1f}%)" + ("  best" if new_best else ""))
+        return res
+
+
+class AtomicCheckpoint(CheckpointCallback):
+    """SB3's checkpoint schedule (``save_freq`` counted in calls, i.e. total steps / n_envs),
+    each checkpoint written by ``save(model, path, timesteps)``: atomically and with its
+    sidecar, so a process killed mid-write never leaves a half zip that --resume would trust."""
+
+    def __init__(self, save_freq: int, save_path: str, save):
+        super().__init__(save_freq=save_freq, save_path=save_path, name_prefix="model")
+        self.save = save
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            self.save(self.model, Path(self._checkpoint_path(extension="zip")), self.num_timesteps)
+        return True
+
+
+class Progress(BaseCallback):
+    """A progress bar whose total is the number of steps the run will really do, and the signal
+    check: after SIGINT/SIGTERM, learn() stops at the next step."""
+
+    def __init__(self, total: int, show: bool, signals: SignalFlag | None = None):
+        super().__init__()
+        self.total, self.show, self.signals = total, show, signals
+        self.bar = None
+
+    def _on_training_start(self) -> None:
+        if self.show:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=self.total, unit="step", unit_scale=True, dynamic_ncols=True)
+
+    def _on_step(self) -> bool:
+        if self.bar is not None:
+            self.bar.update(min(self.training_env.num_envs, self.total - self.bar.n))
+        return self.signals is None or self.signals.received is None
+
+    def _on_training_end(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+class TrainingDiverged(Exception):
+    """The policy's weights stopped being finite after an update (at ``steps``)."""
+
+    def __init__(self, steps: int):
+        super().__init__(f"the policy's weights are not finite after {steps} steps")
+        self.steps = steps
+
+
+class FiniteWeights(BaseCallback):
+    """Before each rollout, checks that the last update left the policy's weights finite; if
+    not (a diverged update, e.g. from absurd reward weights or learning rate), raises
+    `TrainingDiverged` out of learn(), so the loop reports it in one line and the last good
+    checkpoint stays the newest, instead of failing deep inside torch."""
+
+    def _on_rollout_start(self) -> None:
+        import torch
+
+        if not all(torch.isfinite(p).all() for p in self.model.policy.parameters()):
+            raise TrainingDiverged(self.num_timesteps)
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def speed_cap(step: int, start: float, steps: int) -> float | None:
+    """The curriculum's peak-speed cap at a training step: linear from start to the fastest
+    trajectory (trajectory.MAX_SPEED), then none."""
+    if step >= steps:
+        return None
+    return start + (trajectory.MAX_SPEED - start) * step / steps
+
+
+class SpeedCurriculum(BaseCallback):
+    """Sets the envs' speed cap before each rollout, through SB3's env_method (the batched env,
+    SubprocVecEnv and DummyVecEnv all take it)."""
+
+    def __init__(self, vec, start: float, steps: int):
+        super().__init__()
+        self.vec, self.start, self.steps = vec, start, steps
+
+    def _on_rollout_start(self) -> None:
+        cap = speed_cap(self.num_timesteps, self.start, self.steps)
+        self.vec.env_method("set_speed_cap", cap)
+        self.logger.record("train/speed_cap", cap or 0.0)
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class _AppendingCSV:
+    """SB3's CSV writer, continuing an existing progress.csv instead of truncating it."""
+
+    def __new__(cls, filename: Path):
+        from stable_baselines3.common.logger import CSVOutputFormat
+
+        old = Path(filename).read_text() if Path(filename).is_file() else ""
+        out = CSVOutputFormat(str(filename))  # opens with "w+": truncates
+        if old.strip():
+            out.file.write(old if old.endswith("\n") else old + "\n")
+            out.file.flush()
+            out.keys = old.splitlines()[0].split(",")
+        return out
+
+
+def make_logger(folder: Path):
+    from stable_baselines3.common.logger import Logger, TensorBoardOutputFormat
+
+    folder.mkdir(parents=True, exist_ok=True)
+    tb = TensorBoardOutputFormat(str(folder))
+    # One chart with the policy and both baselines (TensorBoard's "Custom Scalars" tab).
+    tb.writer.add_custom_scalars({"tracking": {
+        "mean error (cm)": ["Multiline", ["eval/mean_error_cm", "eval_classical/mean_error_cm",
+                                          "eval_analytic/mean_error_cm"]],
+        "time in 5 cm band (%)": ["Multiline", ["eval/in_band_pct", "eval_classical/in_band_pct",
+                                                "eval_analytic/in_band_pct"]]}})
+    return Logger(str(folder), [tb, _AppendingCSV(folder / "progress.csv")])
+

@@ -1,0 +1,240 @@
+"""The training config: `TrainConfig` (everything that decides what a run learns), `TrainArgs`
+(train.py's command line: the config plus where the run goes), and the rules for resuming.
+
+config.json and every sidecar store a TrainConfig whole; presets (presets.py) are values of it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Literal
+
+from ..config import EnvConfig
+from ..errors import UserError, check_plain_name
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides what a training run learns. config.json and every sidecar store
+    it whole; presets are values of it."""
+
+    env: EnvConfig = EnvConfig()
+    """The env's settings (see env.EnvConfig), e.g. --env.max-lead 0.1."""
+    timesteps: int = 5_000_000
+    """Total environment steps (PPO collects whole rollouts of n_steps x n_envs, so a run ends
+    at the next multiple; train.py says so)."""
+    n_envs: int = 32
+    """Parallel environments (reference: 8)."""
+    n_steps: int = 128
+    """Steps per environment per PPO rollout (reference: 1024)."""
+    batch_size: int = 1024
+    """PPO minibatch size (reference: 64)."""
+    n_epochs: int = 10
+    """PPO epochs per rollout."""
+    gamma: float = 0.99
+    """Discount factor."""
+    gae_lambda: float = 0.95
+    """GAE lambda."""
+    learning_rate: float = 1e-3
+    """Adam learning rate (reference: 3e-4)."""
+    clip_range: float = 0.2
+    """PPO clipping parameter."""
+    ent_coef: float = 0.0
+    """Entropy bonus coefficient."""
+    net_arch: tuple[int, ...] = (64, 64)
+    """Hidden layer sizes of the policy and value MLPs (tanh)."""
+    log_std_init: float = -1.0
+    """Initial log standard deviation of the Gaussian policy (reference and SB3: 0, std 1)."""
+    seed: int = 42
+    """Seeds Python, numpy, torch and the environments' streams."""
+    device: str = "cpu"
+    """Torch device (a 64x64 MLP runs fastest on the CPU)."""
+    torch_threads: int = 1
+    """Torch threads of the training process. One: while the policy acts, the env workers need
+    every other core, and idle torch threads spin on them (2 threads on 2 cores: 3-6x slower)."""
+    vec_env: Literal["batched", "subproc", "dummy"] = "batched"
+    """batched: all envs in one mujoco.batch.Batch in this process (sb3_vecenv.py); subproc: SB3
+    SubprocVecEnv, a process per env (the reference configuration); dummy: a loop of single
+    envs in this process."""
+    n_workers: int = 0
+    """MuJoCo threads stepping the batched envs (0: one per CPU core)."""
+    eval_freq: int = 50_000
+    """Evaluate on the fixed evaluation set every this many total steps (0: never)."""
+    eval_steps: int = 500
+    """Steps per evaluation episode (500 = 5 s, as the test rollouts)."""
+    checkpoint_freq: int = 500_000
+    """Save a checkpoint every this many total steps."""
+    stop_below_cm: float | None = None
+    """Stop as soon as the evaluation-set mean error drops below this (time-to-quality runs)."""
+    curriculum_steps: int = 500_000
+    """Speed curriculum: over this many steps the training targets' peak-speed cap rises
+    linearly from --curriculum-start-speed to none (0: no curriculum). On by default: it
+    reaches the time-to-quality threshold in half the steps (docs/performance.md) and ends as
+    well (docs/questions.md 5); the presets, the reference ladder, run without it."""
+    curriculum_start_speed: float = 0.8
+    """Peak-speed cap (m/s) of the training targets at step 0 of a curriculum."""
+    preset: str | None = None
+    """Start from a preset (see the list above); every flag given overrides it."""
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        if isinstance(self.env, dict):
+            set_("env", EnvConfig.from_dict(self.env))
+        if not isinstance(self.env, EnvConfig):
+            raise UserError(f"env must be an EnvConfig, got {type(self.env).__name__}")
+        set_("net_arch", tuple(self.net_arch))
+        for name, low in (("timesteps", 1), ("n_envs", 1), ("n_steps", 1), ("batch_size", 2),
+                          ("n_epochs", 1), ("torch_threads", 1), ("n_workers", 0),
+                          ("eval_freq", 0), ("eval_steps", 1), ("checkpoint_freq", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise UserError(f"--{flag(name)} must be an integer >= {low}, got {v!r}")
+        if self.n_steps * self.n_envs < 2:
+            raise UserError("a PPO rollout needs at least 2 steps: raise --n-steps or --n-envs")
+        for name, lo, hi, lo_open in (("gamma", 0, 1, True), ("gae_lambda", 0, 1, False),
+                                      ("learning_rate", 0, math.inf, True),
+                                      ("clip_range", 0, math.inf, True),
+                                      ("ent_coef", 0, math.inf, False),
+                                      ("log_std_init", -math.inf, math.inf, False)):
+            v = getattr(self, name)
+            ok = isinstance(v, int | float) and math.isfinite(v) and v <= hi and (
+                v > lo if lo_open else v >= lo)
+            if not ok:
+                rng = f"in ({lo}, {hi}]" if hi < math.inf else (">" if lo_open else ">=") + f" {lo}"
+                raise UserError(f"--{flag(name)} must be a finite number {rng}, got {v!r}"
+                                if math.isfinite(lo) else f"--{flag(name)} must be finite, got {v!r}")
+            set_(name, float(v))
+        if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1
+                                    for n in self.net_arch):
+            raise UserError(f"--net-arch must be positive layer sizes, got {self.net_arch!r}")
+        if self.stop_below_cm is not None and not (math.isfinite(self.stop_below_cm)
+                                                   and self.stop_below_cm > 0):
+            raise UserError(f"--stop-below-cm must be > 0, got {self.stop_below_cm!r}")
+        if isinstance(self.curriculum_steps, bool) or not isinstance(self.curriculum_steps, int) \
+                or self.curriculum_steps < 0:
+            raise UserError(f"--curriculum-steps must be an integer >= 0, got {self.curriculum_steps!r}")
+        if not (math.isfinite(self.curriculum_start_speed) and self.curriculum_start_speed > 0.25):
+            raise UserError("--curriculum-start-speed must be above 0.25 m/s, got "
+                            f"{self.curriculum_start_speed!r}")
+
+    def to_dict(self) -> dict:
+        """JSON-friendly, whole: what config.json and sidecars hold."""
+        d = asdict(self)
+        d["env"] = self.env.to_dict()
+        d["net_arch"] = list(self.net_arch)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        """From config.json; also reads the format before TrainConfig (ppo sub-dict, env
+        kwargs plus env_resolved)."""
+        d = dict(d)
+        if "ppo" in d:  # the older layout
+            d.update(d.pop("ppo"))
+            d["env"] = d.pop("env_resolved", None) or d.get("env", {})
+        # Configs written before the curriculum existed trained without one.
+        d.setdefault("curriculum_steps", 0)
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def flag(name: str) -> str:
+    return name.replace("_", "-")
+
+
+@dataclass(frozen=True)
+class TrainArgs(TrainConfig):
+    """train.py's command line: the training config plus where the run goes and what happens
+    around it."""
+
+    reference_hparams: bool = False
+    """Start from the reference work's PPO settings (8 SubprocVecEnv envs, n_steps 1024,
+    batch 64, lr 3e-4, log_std_init 0); flags given still override them."""
+    runs_dir: Path = Path("runs")
+    """Where run folders are created."""
+    name: str | None = None
+    """Run name prefix (default: the preset, else 'lead')."""
+    resume: Path | None = None
+    """Continue a run folder from its newest valid checkpoint (or interrupted model); only the
+    run-time flags (--timesteps, --eval-freq, --checkpoint-freq, ...) may change."""
+    archive: str | None = None
+    """At the end, copy the best model to archive/NAME.zip with its sidecar, test metrics and a
+    model card (archive/NAME.md)."""
+    force: bool = False
+    """Replace an existing archive/NAME.zip."""
+    progress: bool = True
+    """Show a progress bar."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        for flag, value in (("--name", self.name), ("--archive", self.archive)):
+            if value is not None:
+                check_plain_name(value, flag)
+
+    def config(self) -> TrainConfig:
+        return TrainConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(TrainConfig)})
+
+
+# The reference work's configuration (what `--reference-hparams` starts from).
+REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10,
+                         learning_rate=3e-4, log_std_init=0.0, curriculum_steps=0)
+
+
+# Run-time settings --resume may change; the rest must stay what the run was trained with.
+# torch_threads is not among them: the thread count changes torch's float reductions, and so the
+# trained weights. n_workers (MuJoCo's threads) does not change any result.
+RESUME_MAY_CHANGE = ("timesteps", "eval_freq", "eval_steps", "checkpoint_freq", "stop_below_cm",
+                     "device", "n_workers")
+
+
+def read_run_config(run_dir: Path) -> TrainConfig:
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise UserError(f"--resume {run_dir}: not a run folder (no config.json)")
+    try:
+        data = json.loads(path.read_text())
+        if not isinstance(data, dict):
+            raise TypeError(f"a JSON object is needed, got {type(data).__name__}")
+        return TrainConfig.from_dict(data)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, TypeError, ValueError,
+            UserError) as exc:
+        raise UserError(f"{path}: unreadable run config ({exc})") from None
+
+
+def physical_memory() -> int:
+    """Bytes of RAM on this machine."""
+    import os
+
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def memory_estimate(config: TrainConfig) -> int:
+    """A lower bound on the bytes a run needs, from the sizes that scale: PPO's rollout buffer
+    (float32: observations, actions, and six per-step scalars), the policy and value MLPs with
+    Adam's two moments and the gradients, one MjData and the precomputed target path per arm.
+    Enough to refuse a typo (a million envs, a 200,000-wide layer) before anything is created."""
+    from ..config import OBS_FEATURES
+
+    obs = sum(OBS_FEATURES[f] for f in config.env.obs_features)
+    act = 7 if config.env.action != "lead" else 3
+    buffer = config.n_envs * config.n_steps * (obs + 2 * act + 6) * 4
+    layers = [obs, *config.net_arch]
+    params = 2 * sum(a * b + b for a, b in zip(layers, layers[1:], strict=False))
+    params += config.net_arch[-1] * (act + 1) + act
+    net = params * 4 * 4  # weights, gradients, Adam's two moments
+    per_arm = 60_000 + (config.env.episode_steps + 1) * 9 * 8 * 2  # MjData; path (+ eval)
+    return buffer + net + config.n_envs * per_arm
+
+
+def check_fits(config: TrainConfig) -> None:
+    """UserError when a run cannot fit in this machine's memory (before any folder is made)."""
+    need, have = memory_estimate(config), physical_memory()
+    if need > 0.8 * have:
+        raise UserError(f"this run needs at least {need / 2**30:.1f} GiB of memory (n_envs "
+                        f"{config.n_envs}, n_steps {config.n_steps}, net_arch "
+                        f"{list(config.net_arch)}, episode_steps {config.env.episode_steps}); "
+                        f"this machine has {have / 2**30:.1f} GiB")

@@ -1,0 +1,68 @@
+"""Presets: named values of `TrainConfig`. The reference work's ladder (v1..v9) and this repo's
+own configurations; `uv run train.py --preset NAME --help` shows one's values."""
+
+from __future__ import annotations
+
+from ..config import OBS_12, OBS_15, OBS_29, EnvConfig
+from ..errors import UserError, did_you_mean
+from .config import TrainConfig
+
+# Penetration is millimetres deep, so the weight is large: 1 cm deep costs 1 per step, about
+# ten times the distance term at a typical 10 cm error.
+COLLISION_WEIGHT = 100.0
+
+
+def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
+    env = EnvConfig(**kw.pop("env", {}))
+    PRESET_DOCS[name] = doc
+    kw.setdefault("curriculum_steps", 0)  # the ladder as the reference trained it
+    return name, TrainConfig(env=env, preset=name, **kw)
+
+
+# The reference work's ladder of versions (v1..v9), plus this repo's own `smooth`.
+PRESET_DOCS: dict[str, str] = {}
+PRESETS: dict[str, TrainConfig] = {}
+PRESETS.update([
+    _preset("v1", "circles only, 12-D observation (no target_acc)",
+            env=dict(obs_features=OBS_12, shapes=("circle",)), timesteps=1_000_000),
+    _preset("v2", "all shapes + self-collision penalty",
+            env=dict(obs_features=OBS_12, w_collision=COLLISION_WEIGHT)),
+    _preset("v3", "v2 without the collision penalty", env=dict(obs_features=OBS_12)),
+    _preset("v4", "v3 + entropy bonus ent_coef 0.01", env=dict(obs_features=OBS_12),
+            ent_coef=0.01),
+    _preset("v5", "v3 + target_acc in the observation (15-D)", env=dict(obs_features=OBS_15)),
+    # The reference work's own question: what does v5 do with the joint state (14-D more) and
+    # nothing else changed? Isolates the observation from v6/v7's reward and termination.
+    _preset("v5_joint", "v5 + joint angles and velocities (29-D), v5's reward, no termination",
+            env=dict(obs_features=OBS_29)),
+    _preset("v6", "v5 + joint angles and velocities (29-D) + early termination on "
+            "self-collision", env=dict(obs_features=OBS_29, terminate_on_collision=True)),
+    # The termination penalty (50) outweighs what the rest of an episode can still earn (at
+    # most ~1 per step from the tracking term, minus the distance), so ending early never pays.
+    _preset("v7", "v6 + exponential tracking reward + termination penalty",
+            env=dict(obs_features=OBS_29, terminate_on_collision=True, w_tracking=1.0,
+                     w_alive=0.0, w_termination=50.0)),
+    _preset("v9", "v5 + action-change penalty (weight 0.1) + 5 s episodes",
+            env=dict(obs_features=OBS_15, w_action_change=0.1, episode_steps=500)),
+    # The policy sees its previous action, so the action-change penalty is a Markov cost it
+    # can plan against; the penalty keeps the lead smooth (jerk), the collision term keeps the
+    # arm out of itself.
+    _preset("smooth", "v5 + prev_action observed + action-change penalty 0.5 + collision "
+            "penalty + 5 s episodes (this repo's own)",
+            env=dict(obs_features=OBS_15 + ("prev_action",), w_action_change=0.5,
+                     w_collision=COLLISION_WEIGHT, episode_steps=500)),
+    # The reference author's wish to replace IK: the same task and observation as v5, but the
+    # action moves the IK's joint goal (7-D, 0.2 rad per joint at +-1) instead of its target.
+    _preset("joint", "v5 with a 7-D joint-goal residual instead of the Cartesian lead",
+            env=dict(obs_features=OBS_15, action="joint")),
+])
+
+
+def get_preset(name: str) -> TrainConfig:
+    if name not in PRESETS:
+        raise UserError(f"unknown preset {name!r}" + did_you_mean(name, PRESETS))
+    return PRESETS[name]
+
+
+def preset_table() -> str:
+    return "\n".join(f"  {k:7s} {v}" for k, v in PRESET_DOCS.items())
