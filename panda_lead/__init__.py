@@ -14,6 +14,12 @@ from __future__ import annotations
 
 import gymnasium as gym
 
+from .display import choose_gl_backend
+
+# Every submodule import runs this first, so MuJoCo (which reads MUJOCO_GL once, at its first
+# import) renders offscreen through EGL on a headless machine whichever module comes first.
+choose_gl_backend()
+
 __version__ = "0.2.0"
 
 ENV_ID = "PandaLead-v0"

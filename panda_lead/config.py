@@ -15,8 +15,8 @@ from functools import cache
 from typing import Literal
 
 from . import trajectory
-from .core import N_JOINTS
-from .errors import UserError, did_you_mean
+from .core import N_JOINTS, IKConfig
+from .errors import UserError, check_typed_fields, did_you_mean
 
 OBS_FEATURES = {
     "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
@@ -38,7 +38,11 @@ REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", 
                 "termination")
 
 
-ACTIONS = {"lead": 3, "joint": N_JOINTS}
+ACTIONS = {"lead": 3, "joint": N_JOINTS, "joint_target": N_JOINTS}
+# Settings that are mappings: a command line sets some of their keys (EnvConfig.merged).
+MAPPINGS = ("obs_noise", "ik")
+MAX_REWARD_WEIGHT = 1e6
+MAX_EPISODE_STEPS = 100_000  # 1,000 s: beyond it an episode's precomputed path is a typo
 
 
 def action_dim(action: str) -> int:
@@ -99,20 +103,19 @@ class EnvConfig:
     """End the episode (terminated) on a self-collision."""
     obs_noise: dict[str, float] = field(default_factory=dict)
     """Gaussian noise std per observation feature, in the feature's unit (m, m/s, m/s^2, rad)."""
-    ik_iters: int = 1
-    """DLS iterations per control step."""
-    ik_clearance: float = 0.0
-    """Collision-aware IK: keep the arm's links this far apart (m; e.g. 0.02) by a velocity
-    damper on the IK step (clearance.py); 0: off, the plain IK."""
+    ik: IKConfig = field(default_factory=IKConfig)
+    """The classical IK's settings (core.IKConfig): --env.ik.damping, --env.ik.clearance, ..."""
     obs_delay: int = 0
     """Observation latency in control steps (10 ms each): the policy sees the state of k steps ago."""
     action_delay: int = 0
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
-    action: Literal["lead", "joint"] = "lead"
+    action: Literal["lead", "joint", "joint_target"] = "lead"
     """lead: the action is a Cartesian lead added to the IK target (3-D); joint: a residual
-    added to the IK's joint goal (7-D, one per joint; it can move the elbow, a lead cannot)."""
+    added to the IK's joint goal (7-D, one per joint; it can move the elbow, a lead cannot);
+    joint_target: the joint goals themselves (7-D, -1..1 spans each joint's range; no IK at
+    all: zero action is not the classical controller)."""
     max_joint_offset: float = 0.2
     """With action "joint": the joint-goal offset (rad) at action +-1."""
     max_peak_speed: float | None = None
@@ -137,32 +140,25 @@ class EnvConfig:
             if not (isinstance(std, int | float) and math.isfinite(std) and std >= 0):
                 raise UserError(f"obs_noise[{f!r}] must be a finite std >= 0, got {std!r}")
         set_("obs_noise", {f: float(v) for f, v in self.obs_noise.items()})
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if f.type == "float":
-                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                    raise UserError(f"{f.name} must be a finite number, got {v!r}")
-                set_(f.name, float(v))
-            elif f.type in ("int", "bool") and type(v) is not (int if f.type == "int" else bool):
-                kind = "an integer" if f.type == "int" else "true or false"
-                raise UserError(f"{f.name} must be {kind}, got {v!r}")
+        set_("ik", IKConfig.from_dict(self.ik))
+        check_typed_fields(self)
+        for name in REWARD_TERMS:  # bounded: a weight of 1e308 makes every loss infinite
+            w = getattr(self, f"w_{name}")
+            if abs(w) > MAX_REWARD_WEIGHT:
+                raise UserError(f"w_{name} must be within +-{MAX_REWARD_WEIGHT:g}, got {w!r}")
         if self.max_lead < 0:
             raise UserError(f"max_lead must be >= 0, got {self.max_lead}")
-        if self.episode_steps < 1:
-            raise UserError(f"episode_steps must be >= 1, got {self.episode_steps}")
-        if self.ik_iters < 1:
-            raise UserError(f"ik_iters must be >= 1, got {self.ik_iters}")
-        if self.ik_clearance < 0 or (self.ik_clearance > 0 and self.ik_iters != 1):
-            raise UserError(f"ik_clearance must be >= 0 and needs ik_iters 1, got "
-                            f"{self.ik_clearance} with ik_iters {self.ik_iters}")
+        if not 1 <= self.episode_steps <= MAX_EPISODE_STEPS:
+            raise UserError(f"episode_steps must be 1..{MAX_EPISODE_STEPS:,}, got "
+                            f"{self.episode_steps}")
         if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
             raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
                             f"{self.obs_delay}, {self.action_delay}")
-        if self.action not in ("lead", "joint"):
-            raise UserError(f"action must be 'lead' or 'joint', got {self.action!r}")
-        if self.action == "joint" and "prev_action" in self.obs_features:
+        if self.action not in ACTIONS:
+            raise UserError(f"unknown action {self.action!r}" + did_you_mean(self.action, ACTIONS))
+        if self.action != "lead" and "prev_action" in self.obs_features:
             raise UserError("prev_action is a 3-D lead feature; it cannot be observed with "
-                            "action 'joint'")
+                            f"action {self.action!r}")
         if self.max_joint_offset < 0:
             raise UserError(f"max_joint_offset must be >= 0, got {self.max_joint_offset}")
         if self.max_peak_speed is not None:
@@ -175,9 +171,16 @@ class EnvConfig:
 
     @classmethod
     def from_dict(cls, settings: dict) -> EnvConfig:
-        """From a sidecar or keyword arguments; an unknown name is one clear error."""
+        """From a sidecar or keyword arguments; an unknown name is one clear error. Sidecars
+        written before the IK settings were nested (ik_iters, ik_clearance) read the same."""
         if not isinstance(settings, dict):
             raise UserError(f"env settings must be a mapping, got {type(settings).__name__}")
+        settings = dict(settings)
+        legacy = {k[3:]: settings.pop(k) for k in ("ik_iters", "ik_clearance") if k in settings}
+        if legacy:
+            ik = settings.get("ik", {})
+            ik = dataclasses.asdict(ik) if isinstance(ik, IKConfig) else ik
+            settings["ik"] = {**legacy, **ik} if isinstance(ik, dict) else ik
         names = [f.name for f in dataclasses.fields(cls)]
         for k in settings:
             if k not in names:
@@ -185,7 +188,16 @@ class EnvConfig:
         return cls(**settings)
 
     def replace(self, **changes) -> EnvConfig:
+        """A copy with ``changes``, each replacing the setting whole."""
         return self.from_dict({**self.to_dict(), **changes})
+
+    def merged(self, overrides: dict) -> EnvConfig:
+        """A copy with ``overrides`` applied the way a command line means them: a mapping
+        setting (obs_noise, ik) gets the keys given and keeps its others; the rest replace."""
+        d = self.to_dict()
+        for k, v in overrides.items():
+            d[k] = {**d[k], **v} if k in MAPPINGS and isinstance(v, dict) else v
+        return self.from_dict(d)
 
     def to_dict(self) -> dict:
         """JSON-friendly (lists for tuples): what sidecars and config.json hold."""
@@ -194,9 +206,10 @@ class EnvConfig:
 
 
 @cache
-def config_docs() -> dict[str, str]:
-    """Each EnvConfig field's docstring (the string under it), read from the source."""
-    tree = ast.parse(textwrap.dedent(inspect.getsource(EnvConfig)))
+def config_docs(cls=None) -> dict[str, str]:
+    """Each field's docstring (the string under it) of a config class (default EnvConfig),
+    read from the source."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls or EnvConfig)))
     body, docs = tree.body[0].body, {}
     for a, b in zip(body, body[1:], strict=False):
         documented = isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)
@@ -206,12 +219,21 @@ def config_docs() -> dict[str, str]:
 
 
 def arguments_table() -> str:
-    """The env docstring's arguments table, made from EnvConfig (so it cannot drift)."""
+    """The env docstring's arguments table, made from EnvConfig (so it cannot drift); a nested
+    config's fields get a row each (ik.damping, ...)."""
     rows = ["| name | type | default | meaning |", "|---|---|---|---|"]
-    defaults = EnvConfig()
-    for f in dataclasses.fields(EnvConfig):
-        cells = (f.name, f.type, repr(getattr(defaults, f.name)), config_docs()[f.name])
-        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+
+    def add(cls, defaults, prefix: str) -> None:
+        docs = config_docs(cls)
+        for f in dataclasses.fields(cls):
+            value = getattr(defaults, f.name)
+            if dataclasses.is_dataclass(value):
+                add(type(value), value, f"{prefix}{f.name}.")
+                continue
+            cells = (prefix + f.name, str(f.type), repr(value), docs[f.name])
+            rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+
+    add(EnvConfig, EnvConfig(), "")
     return "\n".join(rows)
 
 

@@ -28,26 +28,19 @@ J_p(a) - [b - a]x J_r), so the next IK needs no kinematics of its own.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
-import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
-if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-    import ctypes.util
-
-    # Headless: offscreen rendering through EGL, where the EGL library exists (MuJoCo reads
-    # this once, at import; a machine without EGL can still simulate, just not render).
-    if ctypes.util.find_library("EGL"):
-        os.environ.setdefault("MUJOCO_GL", "egl")
-
-import mujoco  # noqa: E402
-import mujoco.batch  # noqa: E402
-import numpy as np  # noqa: E402
+import mujoco  # (panda_lead/__init__.py chose the GL backend before this first import)
+import mujoco.batch
+import numpy as np
 
 from . import trajectory
 from .clearance import Clearance
+from .errors import UserError, check_typed_fields, did_you_mean
 from .paths import shipped
 
 ASSETS = shipped("assets")
@@ -114,25 +107,43 @@ def analytic_lead(vel: np.ndarray, acc: np.ndarray, tau: float, max_lead: float)
 
 @dataclass(frozen=True)
 class IKConfig:
-    damping: float = 0.05
+    """The classical controller's IK, every knob of it (EnvConfig.ik; ``--env.ik.damping``)."""
+
+    damping: float = field(default=0.05, metadata={"range": (0.0, 10.0)})
     """DLS damping lambda (m): keeps steps finite near singularities and out-of-reach targets."""
-    iters: int = 1
-    """DLS iterations per control step, each from the last (the first from the measured q)."""
-    nullspace_gain: float = 0.1
+    iters: int = field(default=1, metadata={"range": (1, 100)})
+    """DLS iterations per IK solve, each from the last (the first from the measured angles)."""
+    nullspace_gain: float = field(default=0.1, metadata={"range": (0.0, 1.0)})
     """Pull towards the home posture in the Jacobian's null space, so the elbow does not drift."""
-    max_step: float = 0.5
+    max_step: float = field(default=0.5, metadata={"range": (1e-6, 10.0)})
     """Largest joint change per iteration (rad, infinity norm)."""
-    limit_margin: float = 0.02
+    limit_margin: float = field(default=0.02, metadata={"range": (0.0, 0.5)})
     """Joint goals stay this far (rad) inside the joint limits."""
-    clearance: float = 0.0
-    """Collision-aware IK: keep the arm's collision capsules this far apart (m) by a velocity
-    damper on the IK step (clearance.py); 0 is off, the plain IK."""
+    clearance: float = field(default=0.0, metadata={"range": (0.0, 0.2)})
+    """Collision-aware IK: keep the arm's collision capsules this far apart (m; e.g. 0.02) by a
+    velocity damper on the IK step (clearance.py); 0: off, the plain IK. Needs iters 1."""
+    substep_ik: bool = False
+    """Solve the IK before every physics substep (500 Hz) on the target at that instant, the
+    lead held over the control step, instead of once per control step (100 Hz): the reference
+    work's rate, for an apples-to-apples baseline. Five times the IK work per step."""
 
     def __post_init__(self):
-        if not (self.iters >= 1 and self.damping >= 0 and self.max_step > 0):
-            raise ValueError(f"IKConfig needs iters >= 1, damping >= 0, max_step > 0: {self}")
-        if self.clearance < 0 or (self.clearance > 0 and self.iters != 1):
-            raise ValueError(f"IKConfig's clearance must be >= 0, and needs iters == 1: {self}")
+        check_typed_fields(self, "ik.")
+        if self.clearance > 0 and self.iters != 1:
+            raise UserError(f"ik.clearance needs ik.iters 1, got clearance {self.clearance} "
+                            f"with iters {self.iters}")
+
+    @classmethod
+    def from_dict(cls, settings) -> IKConfig:
+        if isinstance(settings, IKConfig):
+            return settings
+        if not isinstance(settings, dict):
+            raise UserError(f"ik must be a mapping of IK settings, got {settings!r}")
+        names = [f.name for f in dataclasses.fields(cls)]
+        for k in settings:
+            if k not in names:
+                raise UserError(f"unknown IK setting {k!r}" + did_you_mean(k, names))
+        return cls(**settings)
 
 
 _STAGE_NONE = mujoco.mjtStage.mjSTAGE_NONE
@@ -194,6 +205,7 @@ class ArmBatch:
         self._old_tip = np.zeros((n, 3))
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
+        self._fine_pos = None  # the target at every substep (substep_ik only)
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -229,6 +241,19 @@ class ArmBatch:
         for i, traj in zip(ids, trajs, strict=True):
             pos, vel, acc = traj.at(times)
             self.target_pos[i], self.target_vel[i], self.target_acc[i] = pos, vel, acc
+        if self.ik_config.substep_ik:  # the target at every physics substep, for the IK there
+            fine = n_steps * self.substeps + 1
+            if self._fine_pos is None or self._fine_pos.shape[1] != fine:
+                self._fine_pos = np.zeros((self.n, fine, 3))
+            fine_times = np.arange(fine) * (self.dt / self.substeps)
+            for i, traj in zip(ids, trajs, strict=True):
+                self._fine_pos[i] = traj.at(fine_times)[0]
+
+    @property
+    def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) joint goals the controller may command (rad): the MJCF limits less the
+        IK's margin."""
+        return self._lo, self._hi
 
     @property
     def time(self) -> np.ndarray:
@@ -312,21 +337,31 @@ class ArmBatch:
         skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = r[:, 2], -r[:, 1], r[:, 0]
         self._jac = jacp - skew @ jacr
 
-    def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None
-             ) -> None:
+    def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None,
+             joint_goal: np.ndarray | None = None) -> None:
         """One control step of every arm: IK on (target + lead), plus an optional joint-goal
-        offset (rad, kept inside the joint limits), then the PD for the substeps."""
+        offset (rad, kept inside the joint limits), then the PD for the substeps. With
+        ``joint_goal`` (rad) the IK is skipped: the goal goes to the PD as it is (clipped to
+        the limits). With ``ik.substep_ik`` the IK is solved before every substep instead, on
+        the target at that instant, the lead held."""
         if self.target_pos is None:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
-        target = self.target()[0]
-        self.q_goal = self.ik(target if lead is None else target + lead)
-        if joint_offset is not None:
-            self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
-        self._ctrl[:, :N_JOINTS] = self.q_goal
         b = self.batch
-        sensors = b.rollout(self.substeps, record=("sensordata",), out=self._contacts)["sensordata"]
-        self._end_of_step_kinematics()
+        if joint_goal is not None:
+            self.q_goal = np.clip(joint_goal, self._lo, self._hi)
+        elif self.ik_config.substep_ik:
+            sensors = self._substep_ik_step(lead, joint_offset)
+        else:
+            target = self.target()[0]
+            self.q_goal = self.ik(target if lead is None else target + lead)
+            if joint_offset is not None:
+                self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
+        if joint_goal is not None or not self.ik_config.substep_ik:
+            self._ctrl[:, :N_JOINTS] = self.q_goal
+            sensors = b.rollout(self.substeps, record=("sensordata",),
+                                out=self._contacts)["sensordata"]
+            self._end_of_step_kinematics()
         self.step_count += 1
         self._mocap[:] = self.target_pos[self._arange, self._path_index()]
         # Contact sensors, recorded after every substep: any touch in the step counts.
@@ -339,6 +374,23 @@ class ArmBatch:
         warnings = b.warning[:, _UNSTABLE_WARNINGS, 1]
         self.unstable = (warnings != self._warnings).any(axis=1) | ~np.isfinite(self.qpos).all(1)
         self._warnings = warnings.copy()
+
+    def _substep_ik_step(self, lead, joint_offset) -> np.ndarray:
+        """The substeps of one control step, each after an IK on the target at its start time
+        (the fine path); returns the contact sensors recorded after each substep."""
+        b, sensors = self.batch, self._contacts["sensordata"]
+        one = {"sensordata": np.zeros((self.n, 1, sensors.shape[2]))}
+        fine = self._fine_pos
+        base = np.minimum(self.step_count * self.substeps, fine.shape[1] - 1)
+        for j in range(self.substeps):
+            target = fine[self._arange, np.minimum(base + j, fine.shape[1] - 1)]
+            self.q_goal = self.ik(target if lead is None else target + lead)
+            if joint_offset is not None:
+                self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
+            self._ctrl[:, :N_JOINTS] = self.q_goal
+            sensors[:, j] = b.rollout(1, record=("sensordata",), out=one)["sensordata"][:, 0]
+            self._end_of_step_kinematics()
+        return sensors
 
     # --- inspection --------------------------------------------------------------------------
     def get_data(self, i: int = 0, data: mujoco.MjData | None = None) -> mujoco.MjData:

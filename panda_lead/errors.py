@@ -7,7 +7,9 @@ which is why ``UserError`` is not a ``ValueError`` (catching those would hide re
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
+import math
 import re
 import sys
 from collections.abc import Callable, Iterable
@@ -24,6 +26,28 @@ def did_you_mean(name: object, valid: Iterable[str]) -> str:
     close = difflib.get_close_matches(str(name), valid, n=1)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     return f"{hint} (valid: {', '.join(valid)})"
+
+
+def check_typed_fields(obj, prefix: str = "") -> None:
+    """Check (and normalise) a frozen dataclass's plain fields by their annotation: a "float"
+    must be a finite number (stored as float), an "int" an int, a "bool" a bool, each within
+    ``field.metadata["range"]`` = (low, high) when given. One message format for every config."""
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        name = prefix + f.name
+        if f.type == "float":
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise UserError(f"{name} must be a finite number, got {v!r}")
+            object.__setattr__(obj, f.name, float(v))
+        elif f.type in ("int", "bool") and type(v) is not (int if f.type == "int" else bool):
+            kind = "an integer" if f.type == "int" else "true or false"
+            raise UserError(f"{name} must be {kind}, got {v!r}")
+        low, high = f.metadata.get("range", (None, None))
+        v = getattr(obj, f.name)
+        if (low is not None and v < low) or (high is not None and v > high):
+            span = (f"in [{low}, {high}]" if low is not None and high is not None
+                    else f">= {low}" if low is not None else f"<= {high}")
+            raise UserError(f"{name} must be {span}, got {v!r}")
 
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")

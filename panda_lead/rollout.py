@@ -33,6 +33,7 @@ import numpy as np
 
 from .atomicio import atomic_write
 from .errors import UserError
+from .task import failure_of
 
 ROLLOUT_DIR = Path("rollouts")
 ARRAY_KEYS = (
@@ -223,7 +224,7 @@ def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
         for i in np.flatnonzero(live & (terminated | truncated)):
             end[i] = k + 1
             if terminated[i]:
-                failure[i] = "unstable" if info["unstable"][i] else "self_collision"
+                failure[i] = failure_of(info, i, True)
         k += 1
     stacked = {key: np.stack(v, axis=1) for key, v in rows.items()}  # (N, T, ...)
     stacked["self_collision"] = stacked["self_collision"].astype(bool)

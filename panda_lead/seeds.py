@@ -14,10 +14,11 @@
 from __future__ import annotations
 
 from .errors import UserError
+from .trajectory import SHAPES
 
 TEST_SEEDS = tuple(range(0, 1000))
 QUICK_TEST_SEEDS = TEST_SEEDS[:100]  # the quick subset: archive sidecars and cards report it
-EVAL_SHAPES = ("circle", "fig8", "fly")
+EVAL_SHAPES = SHAPES
 EVAL_SEEDS_PER_SHAPE = 5
 # (seed, forced shape): 900000-900004 circles, 900005-900009 figure-eights, 900010-900014 fly.
 EVAL_SET = tuple(

@@ -11,7 +11,7 @@ import numpy as np
 
 from . import trajectory
 from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, action_dim, obs_layout
-from .core import ArmBatch, IKConfig, reachable
+from .core import ArmBatch, reachable
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 
 
@@ -26,7 +26,7 @@ class LeadTask:
         self.config = c = config
         self.n = n
         self.layout = obs_layout(c.obs_features)
-        self.core = ArmBatch(n, IKConfig(iters=c.ik_iters, clearance=c.ik_clearance), nthread=nthread)
+        self.core = ArmBatch(n, c.ik, nthread=nthread)
         self.dt = self.core.dt
         self.obs_dim = self.layout[-1][2]
         self._noise_std = np.zeros(self.obs_dim)
@@ -137,11 +137,15 @@ class LeadTask:
             self._act_hist[:, 1:] = self._act_hist[:, :-1]
             self._act_hist[:, 0] = action
             applied = self._act_hist[self._all, self.action_delay]
-        if self.action_dim == 3:
+        kind = self.config.action
+        if kind == "lead":
             self.lead = applied * self.config.max_lead
             core.step(self.lead)
-        else:
+        elif kind == "joint":
             core.step(joint_offset=applied * self.config.max_joint_offset)
+        else:  # joint_target: -1..1 spans each joint's range, no IK
+            lo, hi = core.joint_limits
+            core.step(joint_goal=lo + 0.5 * (applied + 1.0) * (hi - lo))
         ee = core.tip_pos
         np.subtract(ee, self._prev_ee, out=self.ee_vel)
         self.ee_vel /= self.dt

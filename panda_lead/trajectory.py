@@ -7,12 +7,13 @@ The command line (`uv run trajectory.py`) is panda_lead.cli.trajectory.
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
+
+from .errors import did_you_mean
 
 SHAPES = ("circle", "fig8", "fly")
 SHOULDER = np.array([0.0, 0.0, 0.333])
@@ -67,9 +68,7 @@ class Trajectory:
 
 def check_shape(shape) -> None:
     if shape not in SHAPES:
-        close = difflib.get_close_matches(str(shape), SHAPES, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else ";"
-        raise ValueError(f"unknown shape {shape!r}{hint} (valid: {', '.join(SHAPES)})")
+        raise ValueError(f"unknown shape {shape!r}" + did_you_mean(shape, SHAPES))
 
 
 def sample(seed: int, shape: str | None = None) -> Trajectory:

@@ -35,8 +35,6 @@ import numpy as np
 from .atomicio import atomic_write
 from .errors import UserError
 
-CONTROL_HZ = 100  # rollout rows per second (one per control step)
-
 
 @dataclass(frozen=True)
 class VideoConfig:
@@ -360,7 +358,7 @@ class Panel:
         mujoco.mj_forward(model, data)
         renderer.update_scene(data, camera)
         _scene_flags(renderer.scene, config)
-        draw_markers(renderer.scene, self.r, k, round(config.trail_s * CONTROL_HZ))
+        draw_markers(renderer.scene, self.r, k, round(config.trail_s / self.r.dt))
         frame = renderer.render()
         return overlay(frame, self.title, float(self.r.t[k]), self.err[k], self.err_mean[k], note)
 
@@ -385,11 +383,12 @@ def write(path, rollouts, model: mujoco.MjModel, titles=None, config: VideoConfi
           progress: bool = True) -> None:
     """Render rollouts side by side to an MP4 at ``path``; see the module docstring."""
     path = Path(path)
-    if CONTROL_HZ % config.fps:
-        raise ValueError(f"fps must divide {CONTROL_HZ}, got {config.fps}")
+    rows_per_s = round(1.0 / rollouts[0].dt)  # one rollout row per control step
+    if rows_per_s % config.fps:
+        raise ValueError(f"fps must divide the control rate {rows_per_s} Hz, got {config.fps}")
     titles = titles or [None] * len(rollouts)
     panels = [Panel(r, t) for r, t in zip(rollouts, titles, strict=True)]
-    every = CONTROL_HZ // config.fps
+    every = rows_per_s // config.fps
     rows = frame_rows(max(len(r.t) for r in rollouts), every)
     camera = fit_camera(model, rollouts, config.width / config.height)
     renderer = _renderer(model, config)

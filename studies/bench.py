@@ -231,8 +231,8 @@ def main() -> None:
     cpu1, rate1 = bench_batched(64, 1, steps, reps)
     row("batched env (64 envs, 1 thread): CPU per env step",
         f"{cpu1:.1f} us ({cpu1 / physics:.2f}x physics)")
-    cpu_aware, _ = bench_batched(64, 1, steps, reps, ik_clearance=0.02)
-    row("batched env (64 envs, 1 thread), collision-aware IK (--env.ik-clearance 0.02)",
+    cpu_aware, _ = bench_batched(64, 1, steps, reps, ik={"clearance": 0.02})
+    row("batched env (64 envs, 1 thread), collision-aware IK (--env.ik.clearance 0.02)",
         f"{cpu_aware:.1f} us (+{cpu_aware - cpu1:.1f} us, {cpu_aware / cpu1:.2f}x the plain IK)")
     n_big = 256
     _, base = bench_batched(n_big, 1, steps // 2, reps)

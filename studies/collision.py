@@ -10,7 +10,7 @@ it back. On that subset each controller plays the episode with early termination
 (every episode runs its full 5 s and is compared whole), and is compared with the first model
 by the repo's paired statistics: time in self-collision, episodes that touch at all, and mean
 tracking error. Beside the learned leads: the classical IK and the analytic lead, each also
-with the collision-aware IK (``--env.ik-clearance``, clearance.py), and the first model on it.
+with the collision-aware IK (``--env.ik.clearance``, clearance.py), and the first model on it.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def main(args: Args) -> None:
         seeds = find_subset()
     if len(seeds) < 10:
         raise UserError(f"only {len(seeds)} collision-prone seeds: too few to compare")
-    aware = {"ik_clearance": args.clearance}
+    aware = {"ik": {"clearance": args.clearance}}
     ctrls = {"Classical": (controllers.classical, {}),
              "Classical + clearance": (controllers.classical, aware),
              "Analytic": (controllers.make_analytic(), {}),

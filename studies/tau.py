@@ -25,10 +25,11 @@ class Args:
 def main(args: Args) -> None:
     from panda_lead import controllers
     from panda_lead.config import EnvConfig
+    from panda_lead.core import control_dt
     from panda_lead.rollout import record_many
     from panda_lead.seeds import TUNE_SEEDS
 
-    config = EnvConfig(episode_steps=int(round(args.duration * 100)))
+    config = EnvConfig(episode_steps=int(round(args.duration / control_dt())))
     print(f"tuning tau on {len(TUNE_SEEDS)} seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]}")
     errors = {}
     for tau in args.taus:

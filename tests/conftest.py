@@ -7,10 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-# MuJoCo picks its GL platform once, when it is first imported; core.py chooses EGL on a
-# headless machine. Import it before any test module imports mujoco itself, so a render test
-# works whichever test files run before it (test_core imports mujoco first).
-from panda_lead import core  # noqa: F401
+# MuJoCo picks its GL platform once, when it is first imported; importing panda_lead chooses
+# EGL on a headless machine. Import it before any test module imports mujoco itself, so a
+# render test works whichever test files run before it (test_core imports mujoco first).
+import panda_lead  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
 

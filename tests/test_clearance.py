@@ -89,7 +89,7 @@ def test_collision_aware_ik_keeps_a_colliding_trajectory_apart():
     seeds = [264, 205, 952]
     base = EnvConfig(episode_steps=120, terminate_on_collision=False)
     plain = record_many(base, controllers.classical, seeds)
-    aware = record_many(base.replace(ik_clearance=0.02), controllers.classical, seeds)
+    aware = record_many(base.merged({"ik": {"clearance": 0.02}}), controllers.classical, seeds)
     before = np.mean([r.self_collision.mean() for r in plain])
     after = np.mean([r.self_collision.mean() for r in aware])
     assert before > 0.05
@@ -100,7 +100,9 @@ def test_collision_aware_ik_keeps_a_colliding_trajectory_apart():
 
 def test_clearance_off_is_the_plain_ik_and_bad_values_are_clear_errors():
     assert ArmBatch(2, IKConfig())._clearance is None
-    with pytest.raises(UserError, match="ik_clearance"):
-        EnvConfig(ik_clearance=-0.01)
-    with pytest.raises(UserError, match="ik_clearance"):
-        EnvConfig(ik_clearance=0.02, ik_iters=2)
+    with pytest.raises(UserError, match="ik.clearance"):
+        EnvConfig(ik={"clearance": -0.01})
+    with pytest.raises(UserError, match="ik.clearance needs ik.iters 1"):
+        EnvConfig(ik={"clearance": 0.02, "iters": 2})
+    # Sidecars from before the IK settings were nested read the same.
+    assert EnvConfig.from_dict({"ik_clearance": 0.02}).ik.clearance == 0.02

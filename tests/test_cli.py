@@ -110,7 +110,7 @@ def test_analytic_controller_uses_a_nonzero_lead(tmp_path):
     (["--seeds", "0-1", "--env.obs-noise", "target_vel", "nan"], "must be a finite std"),
     (["--seeds", "0-1", "--env.obs-noise", "targt_vel", "0.1"], "did you mean 'target_vel'"),
     (["--seeds", "0-1", "--env.tracking-scale", "0"], "tracking_scale must be > 0"),
-    (["--seeds", "0-1", "--env.ik-iters", "0"], "ik_iters must be >= 1"),
+    (["--seeds", "0-1", "--env.ik.iters", "0"], "ik.iters must be in [1, 100]"),
     (["--seeds", "0-1", "--duration", "nan"], "--duration must be a positive number"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, bad, message):

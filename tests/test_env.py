@@ -104,7 +104,7 @@ def test_bad_inputs_raise_clear_errors():
         PandaLeadEnv(shapes=("circel",))
     with pytest.raises(UserError, match="did you mean 'max_lead'"):
         PandaLeadEnv(max_leed=0.1)
-    for bad in (dict(ik_iters=0), dict(tracking_scale=0.0), dict(max_lead=float("nan")),
+    for bad in (dict(ik={"iters": 0}), dict(tracking_scale=0.0), dict(max_lead=float("nan")),
                 dict(obs_noise={"ee_pos": float("nan")}), dict(episode_steps=1.5)):
         with pytest.raises(UserError):
             PandaLeadEnv(**bad)
@@ -189,12 +189,18 @@ def test_evaluate_groups_drawn_shapes_by_the_shape_played():
 def test_arguments_table_in_the_docstring_is_the_config():
     import dataclasses
 
+    from panda_lead.core import IKConfig
+
     doc = PandaLeadEnv.__doc__
-    defaults = EnvConfig()
-    for f in dataclasses.fields(EnvConfig):
-        row = next(line for line in doc.splitlines() if line.strip().startswith(f"| {f.name} |"))
-        assert repr(getattr(defaults, f.name)) in row
-        assert config_docs()[f.name], f"{f.name} has no one-line docstring"
+    for cls, prefix in ((EnvConfig, ""), (IKConfig, "ik.")):
+        defaults = cls()
+        for f in dataclasses.fields(cls):
+            if f.name == "ik":
+                continue  # a row per IK knob instead
+            row = next(line for line in doc.splitlines()
+                       if line.strip().startswith(f"| {prefix}{f.name} |"))
+            assert repr(getattr(defaults, f.name)) in row
+            assert config_docs(cls)[f.name], f"{f.name} has no one-line docstring"
 
 
 def test_config_round_trips_through_its_dict():

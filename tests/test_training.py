@@ -84,7 +84,7 @@ def test_config_round_trips_and_reads_the_old_layout():
     (["--batch-size", "1"], "--batch-size must be an integer >= 2"),
     (["--torch-threads", "0"], "--torch-threads must be an integer >= 1"),
     (["--gamma", "nan"], "--gamma must be a finite number"),
-    (["--env.ik-iters", "0"], "ik_iters must be >= 1"),
+    (["--env.ik.iters", "0"], "ik.iters must be in [1, 100]"),
     (["--env.tracking-scale", "0"], "tracking_scale must be > 0"),
     (["--env.obs-noise", "target_vel", "nan"], "must be a finite std"),
     (["--env.obs-noise", "targt_vel", "0.1"], "did you mean 'target_vel'"),

@@ -7,7 +7,6 @@ only the ones given apply, over the model's sidecar config (or the env's default
 from __future__ import annotations
 
 import dataclasses
-import os
 import re
 import typing
 from dataclasses import dataclass, field
@@ -21,13 +20,34 @@ from ..config import EnvConfig, config_docs
 from ..errors import UserError, did_you_mean, exit_on_user_error
 
 
-def _overrides_class():
-    """EnvConfig with every field optional (None: not given): what --env.X sets."""
-    hints = typing.get_type_hints(EnvConfig)
-    fields = [(f.name, Annotated[hints[f.name] | None, tyro.conf.arg(
-        help=config_docs()[f.name], help_behavior_hint="(default: the model's, else the env's)")],
-        field(default=None)) for f in dataclasses.fields(EnvConfig)]
-    return dataclasses.make_dataclass("EnvOverrides", fields, frozen=True)
+def _overrides_class(cls=EnvConfig, name: str = "EnvOverrides"):
+    """``cls`` with every field optional (None: not given): what --env.X sets. A nested config
+    (ik) becomes a nested overrides class, so --env.ik.damping sets that knob alone."""
+    hints = typing.get_type_hints(cls)
+    docs = config_docs(cls)
+    fields = []
+    for f in dataclasses.fields(cls):
+        kind = hints[f.name]
+        if dataclasses.is_dataclass(kind):
+            sub = _overrides_class(kind, f"{kind.__name__}Overrides")
+            fields.append((f.name, sub, field(default_factory=sub)))
+            continue
+        fields.append((f.name, Annotated[kind | None, tyro.conf.arg(
+            help=docs[f.name], help_behavior_hint="(default: the model's, else the env's)")],
+            field(default=None)))
+    return dataclasses.make_dataclass(name, fields, frozen=True)
+
+
+def given(overrides) -> dict:
+    """The flags given, as EnvConfig.merged takes them ({"ik": {"damping": 0.1}, ...})."""
+    out = {}
+    for f in dataclasses.fields(overrides):
+        v = getattr(overrides, f.name)
+        if dataclasses.is_dataclass(v):
+            v = given(v) or None
+        if v is not None:
+            out[f.name] = v
+    return out
 
 
 EnvOverrides = _overrides_class()
@@ -93,8 +113,8 @@ def _validate(args: Args):
         raise UserError("--compare renders a video: add --video out.mp4")
     if args.compare and len(args.compare) != 2:
         raise UserError(f"--compare takes two controllers (or none), got {' '.join(args.compare)}")
-    overrides = {k: v for k, v in dataclasses.asdict(args.env).items() if v is not None}
-    EnvConfig.from_dict(overrides)  # a bad value is one clear line before any work
+    overrides = given(args.env)
+    EnvConfig().merged(overrides)  # a bad value is one clear line before any work
     return seeds, overrides
 
 
@@ -124,9 +144,9 @@ def _build(args: Args, overrides: dict):
     if args.controller != "policy":
         meta["model"] = None
         meta.pop("model_sha256", None)
-    kwargs = {**env_kwargs, **overrides, "episode_steps": steps}
+    config = EnvConfig.from_dict(env_kwargs).merged({**overrides, "episode_steps": steps})
     render = "rgb_array" if args.video else None
-    env = PandaLeadEnv(**kwargs, render_mode=render)
+    env = PandaLeadEnv(config, render_mode=render)
     return env, act, meta, model
 
 
@@ -224,7 +244,9 @@ def write_video(args: Args, seed: int, overrides: dict) -> None:
 
 
 def watch(args: Args, seed: int, overrides: dict) -> None:
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    from ..display import has_display
+
+    if not has_display():
         raise UserError("no display for the viewer: record instead with --video out.mp4, or "
                         "write rollout files with --seeds 0-9 --prefix NAME")
     import time

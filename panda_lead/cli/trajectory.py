@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    from ..display import has_display
+
+    display = has_display()
     if args.show and args.out is None and not display:
         print("error: no display: use --out FILE.png", file=sys.stderr)
         return 2

@@ -226,9 +226,9 @@ def compare(
 
 def seed_set_title(seeds: list[int], unit: str = "pairs") -> str:
     """'test seeds 0-999, n=1000 pairs': which seed set a figure or table is about."""
-    from ..seeds import POOL_SEEDS, TUNE_SEEDS
+    from ..seeds import EVAL_SET, POOL_SEEDS, TUNE_SEEDS
 
-    eval_seeds = {900_000 + i for i in range(15)}
+    eval_seeds = {s for s, _ in EVAL_SET}
     s = set(seeds)
     pool = POOL_SEEDS.start <= min(s) and max(s) < POOL_SEEDS.stop
     kind = ("test " if max(s) < 1000 else "eval " if s <= eval_seeds
