@@ -111,11 +111,17 @@ class EnvConfig:
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    obs_stack: int = field(default=1, metadata={"range": (1, 16)})
+    """Observe the last k observations, newest first (frame stacking inside the env; the
+    observation is k times as long); 1: the current one only."""
+    reward_after_s: float = field(default=0.0, metadata={"range": (0.0, 10.0)})
+    """The distance and tracking terms count only from this time on (s): 0.5 rewards settled
+    tracking alone (the swing from the home pose is no lead's to improve); 0: every step."""
     action: Literal["lead", "joint", "joint_target"] = "lead"
     """lead: the action is a Cartesian lead added to the IK target (3-D); joint: a residual
     added to the IK's joint goal (7-D, one per joint; it can move the elbow, a lead cannot);
-    joint_target: the joint goals themselves (7-D, -1..1 spans each joint's range; no IK at
-    all: zero action is not the classical controller)."""
+    joint_target: the joint goals themselves (7-D, no IK at all; -1 is a joint's lower limit,
+    0 its home angle, +1 its upper limit, linear in between)."""
     max_joint_offset: float = 0.2
     """With action "joint": the joint-goal offset (rad) at action +-1."""
     max_peak_speed: float | None = None

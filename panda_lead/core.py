@@ -250,6 +250,11 @@ class ArmBatch:
                 self._fine_pos[i] = traj.at(fine_times)[0]
 
     @property
+    def home(self) -> np.ndarray:
+        """The home pose's joint angles (rad), read-only."""
+        return self._home
+
+    @property
     def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) joint goals the controller may command (rad): the MJCF limits less the
         IK's margin."""

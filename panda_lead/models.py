@@ -422,7 +422,7 @@ def spaces_for(env_config: EnvConfig):
 
     from .config import action_dim
 
-    dim = sum(OBS_FEATURES[f] for f in env_config.obs_features)
+    dim = sum(OBS_FEATURES[f] for f in env_config.obs_features) * env_config.obs_stack
     return (spaces.Box(-np.inf, np.inf, (dim,), np.float32),
             spaces.Box(-1.0, 1.0, (action_dim(env_config.action),), np.float32))
 

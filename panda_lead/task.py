@@ -28,9 +28,10 @@ class LeadTask:
         self.layout = obs_layout(c.obs_features)
         self.core = ArmBatch(n, c.ik, nthread=nthread)
         self.dt = self.core.dt
-        self.obs_dim = self.layout[-1][2]
-        self._noise_std = np.zeros(self.obs_dim)
-        self._inv_scale = np.ones(self.obs_dim)
+        base = self.layout[-1][2]  # one observation; obs_stack of them are stacked
+        self.obs_dim = base * c.obs_stack
+        self._noise_std = np.zeros(base)
+        self._inv_scale = np.ones(base)
         for f, a, b in self.layout:
             self._noise_std[a:b] = c.obs_noise.get(f, 0.0)
             self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
@@ -46,12 +47,13 @@ class LeadTask:
         self.shapes = [""] * n
         self.trajs: list = [None] * n
         self._reachable = np.ones((n, c.episode_steps + 1), dtype=bool)
-        self._raw = np.zeros((n, self.obs_dim))
+        self._raw = np.zeros((n, base))
         self._all = np.arange(n)
         # Latency: the last obs_delay+1 observations and action_delay+1 actions per slot, newest
         # first; each slot reads the entry of its own delay (fixed, or drawn per episode).
         self._delayed = bool(c.obs_delay or c.action_delay)
-        self._obs_hist = np.zeros((n, c.obs_delay + 1, self.obs_dim), dtype=np.float32)
+        self._obs_hist = np.zeros((n, c.obs_delay + 1, base), dtype=np.float32)
+        self._stack = np.zeros((n, c.obs_stack, base), dtype=np.float32)  # newest first
         self._act_hist = np.zeros((n, c.action_delay + 1, self.action_dim))
         self.obs_delay = np.full(n, c.obs_delay)
         self.action_delay = np.full(n, c.action_delay)
@@ -83,15 +85,28 @@ class LeadTask:
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
-        if not self._delayed:
-            return self.observe(ids)
-        if self.config.random_delay:
-            for i in ids:
-                self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
-                self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
-        self._act_hist[ids] = 0.0  # before the episode the lead was zero (classical)
-        self._obs_hist[ids] = self.observe(ids)[ids, None, :]  # before it, the arm stood still
-        return self._obs_hist[self._all, self.obs_delay]
+        obs = self.observe(ids)
+        if self._delayed:
+            if self.config.random_delay:
+                for i in ids:
+                    self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
+                    self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
+            self._act_hist[ids] = 0.0  # before the episode the lead was zero (classical)
+            self._obs_hist[ids] = obs[ids, None, :]  # before it, the arm stood still
+            obs = self._obs_hist[self._all, self.obs_delay]
+        return self._stacked(obs, ids)
+
+    def _stacked(self, obs: np.ndarray, reset_ids=None) -> np.ndarray:
+        """The observation the policy gets: the last obs_stack observations, newest first; a
+        slot just reset has seen only its first one (the arm stood still before it)."""
+        if self.config.obs_stack == 1:
+            return obs
+        if reset_ids is not None:
+            self._stack[reset_ids] = obs[reset_ids, None, :]
+        else:
+            self._stack[:, 1:] = self._stack[:, :-1]
+            self._stack[:, 0] = obs
+        return self._stack.reshape(self.n, -1).copy()
 
     def _draw(self, i: int, shape: str | None):
         """A training trajectory from slot i's own stream (under the speed cap, if any)."""
@@ -143,9 +158,10 @@ class LeadTask:
             core.step(self.lead)
         elif kind == "joint":
             core.step(joint_offset=applied * self.config.max_joint_offset)
-        else:  # joint_target: -1..1 spans each joint's range, no IK
+        else:  # joint_target, no IK: -1 the lower limit, 0 the home pose, +1 the upper limit
             lo, hi = core.joint_limits
-            core.step(joint_goal=lo + 0.5 * (applied + 1.0) * (hi - lo))
+            home = core.home
+            core.step(joint_goal=home + np.where(applied < 0, home - lo, hi - home) * applied)
         ee = core.tip_pos
         np.subtract(ee, self._prev_ee, out=self.ee_vel)
         self.ee_vel /= self.dt
@@ -156,9 +172,11 @@ class LeadTask:
         terminated = unstable | (core.self_collision & self.config.terminate_on_collision)
         truncated = ~terminated & (core.step_count >= self.config.episode_steps)
         w, da = self._w, action - self.prev_action
+        counts = core.time >= self.config.reward_after_s - 1e-9  # settled-only reward, if set
         terms = {
-            "distance": -w["distance"] * dist,
-            "tracking": w["tracking"] * np.exp(-dist / self.config.tracking_scale),
+            "distance": np.where(counts, -w["distance"] * dist, 0.0),
+            "tracking": np.where(counts, w["tracking"] * np.exp(-dist / self.config.tracking_scale),
+                                 0.0),
             "action": -w["action"] * np.einsum("ij,ij->i", action, action),
             "action_change": -w["action_change"] * np.einsum("ij,ij->i", da, da),
             "collision": -w["collision"] * core.collision_depth,
@@ -176,6 +194,7 @@ class LeadTask:
             self._obs_hist[:, 0] = obs
             obs = self._obs_hist[self._all, self.obs_delay]
         obs[unstable] = 0.0  # never hand NaNs to the learner
+        obs = self._stacked(obs)
         k = np.minimum(core.step_count, self.config.episode_steps)
         info = {"distance": dist, "reward_terms": terms, "self_collision": core.self_collision,
                 "collision_depth": core.collision_depth, "unstable": unstable,

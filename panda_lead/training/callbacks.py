@@ -86,12 +86,11 @@ class TrackingEval(BaseCallback):
         config = self.config
         if not config.eval_freq:
             return
-        self.baselines = {
-            "classical": evaluate(classical, config.env, config.eval_steps),
-            # The analytic lead is a Cartesian lead: a joint-action run compares with it on the
-            # same task with the lead action (zero action is the same controller).
-            "analytic": evaluate(make_analytic(), config.env.replace(action="lead"),
-                                 config.eval_steps)}
+        # The baselines are Cartesian leads (zero, analytic): a run with another action is
+        # compared with them on the same task with the lead action.
+        as_lead = config.env.replace(action="lead")
+        self.baselines = {"classical": evaluate(classical, as_lead, config.eval_steps),
+                          "analytic": evaluate(make_analytic(), as_lead, config.eval_steps)}
         best_file = self.run_dir / "best.json"
         if best_file.is_file():  # resuming: keep the best so far
             best = json.loads(best_file.read_text())

@@ -41,6 +41,9 @@ class TrainConfig:
     """GAE lambda."""
     learning_rate: float = 1e-3
     """Adam learning rate (reference: 3e-4)."""
+    lr_schedule: Literal["constant", "linear"] = "constant"
+    """constant: the learning rate throughout; linear: from --learning-rate down to 0 at
+    --timesteps (SB3's progress_remaining)."""
     clip_range: float = 0.2
     """PPO clipping parameter."""
     ent_coef: float = 0.0
@@ -108,6 +111,8 @@ class TrainConfig:
                 raise UserError(f"--{flag(name)} must be a finite number {rng}, got {v!r}"
                                 if math.isfinite(lo) else f"--{flag(name)} must be finite, got {v!r}")
             set_(name, float(v))
+        if self.lr_schedule not in ("constant", "linear"):
+            raise UserError(f"--lr-schedule must be constant or linear, got {self.lr_schedule!r}")
         if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1
                                     for n in self.net_arch):
             raise UserError(f"--net-arch must be positive layer sizes, got {self.net_arch!r}")

@@ -51,6 +51,13 @@ class TrainingInterrupted(Exception):
         self.run_dir, self.steps, self.signum = run_dir, steps, int(signum)
 
 
+def linear_schedule(start: float):
+    """SB3 learning-rate schedule: start at progress 1 (the first step), 0 at the end."""
+    def schedule(progress_remaining: float) -> float:
+        return start * progress_remaining
+    return schedule
+
+
 def check_device(device: str, torch) -> None:
     """A CUDA device that is not there is a clear error (SB3 would quietly use the CPU)."""
     try:
@@ -175,6 +182,8 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     logger = make_logger(run_dir / "tb")
     ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",
                                            "gae_lambda", "learning_rate", "clip_range", "ent_coef")}
+    if config.lr_schedule == "linear":
+        ppo["learning_rate"] = linear_schedule(config.learning_rate)
     model = PPO("MlpPolicy", vec, seed=config.seed, device=config.device, verbose=0,
                 policy_kwargs=dict(net_arch=list(config.net_arch), activation_fn=torch.nn.Tanh,
                                    log_std_init=config.log_std_init), **ppo)

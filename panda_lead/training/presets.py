@@ -55,6 +55,21 @@ PRESETS.update([
     # action moves the IK's joint goal (7-D, 0.2 rad per joint at +-1) instead of its target.
     _preset("joint", "v5 with a 7-D joint-goal residual instead of the Cartesian lead",
             env=dict(obs_features=OBS_15, action="joint")),
+    # The climb (docs/questions.md, "the climb"): v5 with one thing changed at a time.
+    _preset("v5_stack", "v5 + the last 3 observations stacked (a short history, 45-D)",
+            env=dict(obs_features=OBS_15, obs_stack=3)),
+    _preset("v5_prev", "v5 + its previous action observed (18-D), no penalty on changes",
+            env=dict(obs_features=OBS_15 + ("prev_action",))),
+    _preset("v5_big", "v5 with a 256x256 policy and value network",
+            env=dict(obs_features=OBS_15), net_arch=(256, 256)),
+    _preset("v5_settled", "v5 rewarded for settled tracking only (t >= 0.5 s)",
+            env=dict(obs_features=OBS_15, reward_after_s=0.5)),
+    _preset("v5_decay", "v5 with the learning rate decayed linearly to 0",
+            env=dict(obs_features=OBS_15), lr_schedule="linear"),
+    # The reference work's wish: no IK at all. The policy outputs the joint goals itself and
+    # sees the joint state it must act on (29-D), v5's reward.
+    _preset("ikfree", "no IK: the action is the 7 joint goals (29-D observation, v5's reward)",
+            env=dict(obs_features=OBS_29, action="joint_target")),
 ])
 
 
