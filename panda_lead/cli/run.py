@@ -270,6 +270,11 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
 
 def run_controller_cli(default_controller: str, default_prefix: str, argv, prog: str,
                        description: str | None = None) -> None:
+    from . import models as model_commands
+
+    if model_commands.wants(argv):  # --restore-sidecar (and --adopt): the model-file commands
+        model_commands.main(list(argv), prog)
+        return
     defaults = Args(controller=default_controller, prefix=default_prefix)
     args = tyro.cli(Args, args=argv, default=defaults, prog=prog, description=description)
     _run(args)
