@@ -38,7 +38,6 @@ import mujoco  # (panda_lead/__init__.py chose the GL backend before this first 
 import mujoco.batch
 import numpy as np
 
-from . import trajectory
 from .clearance import Clearance
 from .errors import UserError, check_typed_fields, did_you_mean
 from .paths import shipped
@@ -47,11 +46,6 @@ ASSETS = shipped("assets")
 SCENE_XML = ASSETS / "scene.xml"
 N_JOINTS = 7
 CONTROL_SUBSTEPS = 5  # physics steps per control step: 500 Hz physics (MJCF timestep), 100 Hz control
-# A target is reachable when it is inside the reach sphere and above the floor margin (the
-# geometry lives in trajectory.py, which samples against it; the sphere's radius is measured:
-# max |tip - shoulder| over 20k random configurations is 0.947 m) and not inside the base
-# column, which the tip cannot enter without the arm folding into itself.
-BASE_COLUMN_RADIUS, BASE_COLUMN_TOP = 0.12, 0.30
 
 
 def _mesh_assets() -> dict[str, bytes]:
@@ -88,16 +82,6 @@ def home_qpos() -> np.ndarray:
 def control_dt(substeps: int = CONTROL_SUBSTEPS) -> float:
     """Seconds per control step: the MJCF physics timestep times the substeps."""
     return float(load_model().opt.timestep) * substeps
-
-
-def reachable(pos: np.ndarray) -> np.ndarray | bool:
-    """Whether the tip can reach a position (or each row of an (..., 3) array)."""
-    p = np.asarray(pos, dtype=float)
-    in_column = (np.linalg.norm(p[..., :2], axis=-1) < BASE_COLUMN_RADIUS) & (
-        p[..., 2] < BASE_COLUMN_TOP
-    )
-    ok = ~trajectory.out_of_reach(p) & ~in_column
-    return bool(ok) if ok.ndim == 0 else ok
 
 
 def analytic_lead(vel: np.ndarray, acc: np.ndarray, tau: float, max_lead: float) -> np.ndarray:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -154,10 +155,11 @@ def load_prefix(prefix: str, root: Path = ROLLOUT_DIR) -> dict[int, Rollout]:
     return {r.seed: r for r in rollouts}
 
 
-def record_many(config, act_fn, seeds, shapes=None, meta: dict | None = None,
-                nthread: int = 0, batch_size: int = 256) -> list[Rollout]:
-    """Play one episode per trajectory seed, all at once (``batch_size`` arms per batch), and
-    record each: the one code path every controller, evaluation and rollout set uses.
+def iter_record(config, act_fn, seeds, shapes=None, meta: dict | None = None,
+                nthread: int = 0, batch_size: int = 256) -> Iterator[Rollout]:
+    """Play one episode per trajectory seed, ``batch_size`` arms at a time, and yield each
+    recorded episode as soon as its batch ends: the one code path every controller,
+    evaluation and rollout set uses. Memory stays that of one batch however many seeds.
 
     ``act_fn(obs, task) -> actions`` decides each step for all arms ((N, obs) -> (N, 3));
     ``config`` is an env.EnvConfig (or its dict). Slot i's generator is seeded with its
@@ -170,7 +172,6 @@ def record_many(config, act_fn, seeds, shapes=None, meta: dict | None = None,
     config = as_config(config, {})
     seeds = [int(s) for s in seeds]
     shapes = [None] * len(seeds) if shapes is None else list(shapes)
-    out: list[Rollout] = []
     task = None
     for start in range(0, len(seeds), batch_size):
         chunk, chunk_shapes = seeds[start:start + batch_size], shapes[start:start + batch_size]
@@ -178,8 +179,13 @@ def record_many(config, act_fn, seeds, shapes=None, meta: dict | None = None,
             task = LeadTask(config, len(chunk), nthread=nthread)
         task.rngs = [np.random.default_rng(s) for s in chunk]
         obs = task.reset(None, chunk, chunk_shapes)
-        out += _play(task, obs, act_fn, meta)
-    return out
+        yield from _play(task, obs, act_fn, meta)
+
+
+def record_many(config, act_fn, seeds, shapes=None, meta: dict | None = None,
+                nthread: int = 0, batch_size: int = 256) -> list[Rollout]:
+    """iter_record, all episodes as a list."""
+    return list(iter_record(config, act_fn, seeds, shapes, meta, nthread, batch_size))
 
 
 def record(env, act_fn, traj_seed: int, shape: str | None = None, meta: dict | None = None,
@@ -239,3 +245,20 @@ def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
         }
         out.append(Rollout(**{key: v[i, :end[i]] for key, v in stacked.items()}, meta=full_meta))
     return out
+
+
+def identity(meta: dict) -> tuple:
+    """What makes two rollouts the same controller: its name, its model's hash (not the path
+    it was given by), its settings (the analytic lead's tau, the oracle's) and the env it ran
+    on, less the episode length. The rollout writer and metrics.py both use this rule."""
+    from .config import EnvConfig
+
+    env = meta.get("env") or {}
+    try:
+        env = EnvConfig.from_dict(env).to_dict()  # older files wrote some settings flat
+    except (UserError, TypeError):
+        pass
+    env = {**env, "episode_steps": None} if isinstance(env, dict) else env
+    return (meta.get("controller"), meta.get("model_sha256"),
+            json.dumps(meta.get("tau")), json.dumps(meta.get("ilc"), sort_keys=True),
+            json.dumps(env, sort_keys=True, default=str))

@@ -11,7 +11,8 @@ import numpy as np
 
 from . import trajectory
 from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, action_dim, obs_layout
-from .core import ArmBatch, reachable
+from .core import ArmBatch
+from .trajectory import reachable
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 
 

@@ -19,6 +19,8 @@ SHAPES = ("circle", "fig8", "fly")
 SHOULDER = np.array([0.0, 0.0, 0.333])
 REACH_RADIUS = 0.94  # furthest the tip gets from the shoulder
 FLOOR_MARGIN = 0.03  # a target below this height counts as unreachable
+# The tip cannot enter the base column without the arm folding into itself.
+BASE_COLUMN_RADIUS, BASE_COLUMN_TOP = 0.12, 0.30
 MAX_SPEED = 2.5  # m/s, bound on |vel|
 MAX_ACC = 30.0  # m/s^2, bound on |acc|
 # Centres and waypoints are drawn uniformly from this box (m). Tuned so that ~10% of
@@ -191,7 +193,18 @@ def out_of_reach(pos: np.ndarray) -> np.ndarray:
     return far | (pos[..., 2] < FLOOR_MARGIN)
 
 
+def reachable(pos: np.ndarray) -> np.ndarray | bool:
+    """Whether the tip can reach a position (or each row of an (..., 3) array): inside the
+    reach sphere, above the floor margin, and not inside the base column. The one definition:
+    the env's reachability flag, rollouts and leaves_reach all use it."""
+    p = np.asarray(pos, dtype=float)
+    in_column = (np.linalg.norm(p[..., :2], axis=-1) < BASE_COLUMN_RADIUS) & (
+        p[..., 2] < BASE_COLUMN_TOP)
+    ok = ~out_of_reach(p) & ~in_column
+    return bool(ok) if ok.ndim == 0 else ok
+
+
 def leaves_reach(traj: Trajectory, duration: float = 5.0, hz: float = 100.0) -> bool:
     """Whether the target is unreachable at any sample of the first ``duration`` seconds."""
     pos, _, _ = traj.at(np.arange(int(round(duration * hz)) + 1) / hz)
-    return bool(out_of_reach(pos).any())
+    return bool((~reachable(pos)).any())

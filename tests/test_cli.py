@@ -111,7 +111,9 @@ def test_analytic_controller_uses_a_nonzero_lead(tmp_path):
     (["--seeds", "0-1", "--env.obs-noise", "targt_vel", "0.1"], "did you mean 'target_vel'"),
     (["--seeds", "0-1", "--env.tracking-scale", "0"], "tracking_scale must be > 0"),
     (["--seeds", "0-1", "--env.ik.iters", "0"], "ik.iters must be in [1, 100]"),
-    (["--seeds", "0-1", "--duration", "nan"], "--duration must be a positive number"),
+    (["--seeds", "0-1", "--duration", "nan"], "--duration must be a number of seconds in (0, 1000]"),
+    (["--seeds", "0-1", "--duration", "1e9"], "--duration must be a number of seconds in (0, 1000]"),
+    (["--seed", "9223372036854775808", "--video", "v.mp4"], "--seed must be an integer in 0..2^63-1"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, bad, message):
     out = run(ROOT / "ikpd.py", *bad, cwd=tmp_path)

@@ -4,7 +4,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from panda_lead.core import N_JOINTS, ArmBatch, home_qpos, load_model, reachable
+from panda_lead.core import N_JOINTS, ArmBatch, home_qpos, load_model
+from panda_lead.trajectory import leaves_reach, reachable, sample
 
 HOME_QPOS = home_qpos()
 
@@ -123,6 +124,19 @@ def test_reachability():
     assert not reachable(np.array([0.0, 0.0, 0.1]))  # inside the base column
     pts = np.array([[0.5, 0.0, 0.4], [1.5, 0.0, 0.4]])
     assert reachable(pts).tolist() == [True, False]
+
+
+def test_one_definition_of_reachable():
+    """Regression: leaves_reach used the sphere and floor only, the env's flag also the base
+    column, so the two disagreed on test seeds whose target passes through the column."""
+    disagree = 0
+    for s in range(300):
+        traj = sample(s)
+        pos = traj.at(np.arange(501) / 100)[0]
+        assert leaves_reach(traj) == bool((~reachable(pos)).any())
+        in_column = (np.linalg.norm(pos[:, :2], axis=1) < 0.12) & (pos[:, 2] < 0.30)
+        disagree += bool(in_column.any())
+    assert disagree > 0  # seeds where only the column makes the target unreachable exist
 
 
 def test_contact_flags_match_a_scan_of_every_substeps_contacts():

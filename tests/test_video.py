@@ -181,7 +181,7 @@ mount -t tmpfs -o size=160k tmpfs {mnt}
 head -c 100000 /dev/urandom > {mnt}/v.mp4
 cp {mnt}/v.mp4 {tmp_path}/old.mp4
 set +e
-MUJOCO_GL=egl {sys.executable} {ROOT}/eval.py --seed 3 --duration 1 --controller analytic \\
+MUJOCO_GL=egl {sys.executable} {ROOT}/eval.py --seed 3 --duration 1 --controller analytic --force \\
     --video {mnt}/v.mp4 2> {tmp_path}/stderr
 echo $? > {tmp_path}/rc
 cmp {mnt}/v.mp4 {tmp_path}/old.mp4 && echo same > {tmp_path}/same

@@ -7,7 +7,6 @@ only the ones given apply, over the model's sidecar config (or the env's default
 from __future__ import annotations
 
 import dataclasses
-import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,8 +15,10 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from .. import harness
 from ..config import EnvConfig, config_docs
 from ..errors import UserError, did_you_mean, exit_on_user_error
+from ..ilc import ILCConfig
 
 
 def _overrides_class(cls=EnvConfig, name: str = "EnvOverrides"):
@@ -62,154 +63,92 @@ class Args:
     seed under --prefix."""
     prefix: str = "eval"
     """Rollout set name (a plain name): files go to <rollouts-dir>/<prefix>/seed_NNNN.npz."""
-    controller: Literal["policy", "classical", "analytic"] = "policy"
-    """Which lead: a trained policy, none (classical), or v*tau + a*tau^2/2 (analytic)."""
+    controller: Literal["policy", "classical", "analytic", "ilc"] = "policy"
+    """Which lead: a trained policy, none (classical), v*tau + a*tau^2/2 (analytic), or the
+    ILC ORACLE (replays each trajectory and learns its lead from the errors it saw: a ceiling,
+    not a controller; started from the --model's lead by default, see --ilc)."""
     model: Path | None = None
     """Policy zip with its sidecar (default: archive/indep_v5.zip, the headline model)."""
     tau: float | None = None
     """Look-ahead of the analytic lead in seconds (default: the tuned value)."""
+    ilc: ILCConfig = field(default_factory=ILCConfig)
+    """The ILC oracle's settings (defaults chosen on the tuning seeds)."""
     shape: str | None = None
     """Force the trajectory shape (circle, fig8, fly) instead of drawing it from the seed."""
     duration: float = 5.0
-    """Episode length in seconds."""
+    """Episode length in seconds (at most 1,000)."""
     video: Path | None = None
     """Render the single episode offscreen to this MP4 instead of opening the viewer."""
-    compare: tuple[Literal["classical", "analytic", "policy"], ...] | None = None
+    compare: tuple[Literal["classical", "analytic", "policy", "ilc"], ...] | None = None
     """With --video: two controllers side by side on the same seed, e.g. --compare classical
     analytic. --compare alone: classical beside --controller (the policy if that is classical)."""
     stochastic: bool = False
     """Sample policy actions instead of taking the mean."""
     env: EnvOverrides = field(default_factory=EnvOverrides)  # type: ignore[valid-type]
-    """Env settings applied over the model's (only the flags given)."""
+    """Env settings for this evaluation (only the flags given), over the model's. A model's
+    training-only settings (observation noise, latency, termination on self-collision) are
+    not inherited: give them here to evaluate under them."""
     rollouts_dir: Path = Path("rollouts")
     """Root folder of rollout sets."""
     force: bool = False
     """Write into a --prefix that holds another controller's or model's rollouts (those files
-    are deleted first, so the set never mixes two)."""
+    are deleted first, so the set never mixes two), or replace an existing --video."""
 
 
-PREFIX_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
+MAX_DURATION_S = 1000.0
+MAX_SEED = 2**63 - 1
 
 
 def _validate(args: Args):
     import math
 
     from .. import trajectory
+    from ..errors import check_plain_name
     from ..seeds import parse_seed_range
 
     seeds = parse_seed_range(args.seeds) if args.seeds is not None else None
-    if not PREFIX_RE.fullmatch(args.prefix):
-        raise UserError(f"--prefix must be a plain name (letters, digits, _ . + -, not starting "
-                        f"with a dot; no / or ..), got {args.prefix!r}")
-    if args.seed is not None and args.seed < 0:
-        raise UserError(f"--seed must be a non-negative integer, got {args.seed}")
+    check_plain_name(args.prefix, "--prefix")
+    if args.seed is not None and not 0 <= args.seed <= MAX_SEED:
+        raise UserError(f"--seed must be an integer in 0..2^63-1, got {args.seed}")
     if args.shape is not None and args.shape not in trajectory.SHAPES:
         raise UserError(f"unknown shape {args.shape!r}" + did_you_mean(args.shape, trajectory.SHAPES))
-    if not (math.isfinite(args.duration) and args.duration > 0):
-        raise UserError(f"--duration must be a positive number, got {args.duration}")
-    if args.tau is not None and not (math.isfinite(args.tau) and args.tau >= 0):
-        raise UserError(f"--tau must be a finite number >= 0, got {args.tau}")
+    if not (math.isfinite(args.duration) and 0 < args.duration <= MAX_DURATION_S):
+        raise UserError(f"--duration must be a number of seconds in (0, {MAX_DURATION_S:g}], "
+                        f"got {args.duration}")
+    if args.tau is not None and not (math.isfinite(args.tau) and 0 <= args.tau <= 1.0):
+        raise UserError(f"--tau must be a number of seconds in [0, 1], got {args.tau}")
     if args.compare is not None and args.video is None:
         raise UserError("--compare renders a video: add --video out.mp4")
     if args.compare and len(args.compare) != 2:
         raise UserError(f"--compare takes two controllers (or none), got {' '.join(args.compare)}")
+    if args.video is not None and args.video.exists() and not args.force:
+        raise UserError(f"{args.video} exists; choose another --video path, or add --force to "
+                        "replace it")
     overrides = given(args.env)
     EnvConfig().merged(overrides)  # a bad value is one clear line before any work
     return seeds, overrides
 
 
-def _build(args: Args, overrides: dict):
-    """-> (env, act_fn, meta) for the chosen controller; a policy's env comes from its sidecar."""
-    from .. import controllers
+def _steps(args: Args) -> int:
     from ..core import control_dt
-    from ..env import PandaLeadEnv
-    from ..models import DEFAULT_MODEL, archived, load_policy
 
-    steps = int(round(args.duration / control_dt()))
-    meta = {"controller": args.controller, "model": None}
-    env_kwargs: dict = {}
-    act = controllers.classical
-    model = None
-    if args.controller == "policy" or args.compare:
-        path = args.model or archived(DEFAULT_MODEL)
-        model, env_kwargs, side = load_policy(path)
-        meta["model"] = str(path)
-        meta["model_sha256"] = side["model_sha256"]
-    if args.controller == "policy":
-        act = controllers.make_policy(model, deterministic=not args.stochastic)
-    elif args.controller == "analytic":
-        tau = controllers.DEFAULT_TAU if args.tau is None else args.tau
-        act = controllers.make_analytic(tau)
-        meta["tau"] = tau
-    if args.controller != "policy":
-        meta["model"] = None
-        meta.pop("model_sha256", None)
-    config = EnvConfig.from_dict(env_kwargs).merged({**overrides, "episode_steps": steps})
-    render = "rgb_array" if args.video else None
-    env = PandaLeadEnv(config, render_mode=render)
-    return env, act, meta, model
+    return int(round(args.duration / control_dt()))
 
 
-IDENTITY_KEYS = ("controller", "model_sha256", "tau")
-
-
-def _claim_prefix(folder: Path, meta: dict, env_config: dict, force: bool):
-    """Lock a rollout folder for this run (flock: a second run on it is refused, so two runs
-    never mix) and check that it holds only rollouts of this controller, model and env; with
-    ``force``, the others are deleted. Returns the open lock file (keep it until done)."""
-    import fcntl
-
-    from ..rollout import read_meta
-
-    folder.mkdir(parents=True, exist_ok=True)
-    lock = open(folder / ".lock", "w")
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        lock.close()
-        raise UserError(f"{folder}: another run is writing rollouts there now; wait for it or "
-                        "choose another --prefix") from None
-    mine = {k: meta.get(k) for k in IDENTITY_KEYS}
-    others = []
-    for f in sorted(folder.glob("seed_*.npz")):
-        try:
-            m = read_meta(f)
-            theirs = {k: m.get(k) for k in IDENTITY_KEYS}
-            same_env = {**m.get("env", {}), "episode_steps": None} == {**env_config,
-                                                                      "episode_steps": None}
-        except UserError:
-            theirs, same_env = {"controller": "unreadable file"}, False
-        if theirs != mine or not same_env:
-            others.append((f, theirs))
-    if others and not force:
-        f, theirs = others[0]
-        what = theirs.get("controller") + (f" (model {theirs['model_sha256'][:12]})"
-                                           if theirs.get("model_sha256") else "")
-        lock.close()
-        raise UserError(f"{folder} holds {len(others)} rollouts of another controller, model or "
-                        f"env ({f.name}: {what}); choose another --prefix, or add --force to "
-                        "delete them and write this set")
-    for f, _ in others:
-        f.unlink()
-    return lock
+def _controller(args: Args, name: str, overrides: dict, model_for_env: bool = False):
+    model = args.model if (args.model is not None or not model_for_env) else None
+    ctrl = harness.build(name, _steps(args), model, overrides, args.tau, args.stochastic,
+                         args.ilc)
+    if ctrl.dropped:
+        print(f"note: evaluating without the model's training-only settings "
+              f"{', '.join(ctrl.dropped)} (give --env.* to evaluate under them)")
+    return ctrl
 
 
 def write_rollouts(args: Args, seeds: list[int], overrides: dict) -> None:
-    from ..rollout import record_many, rollout_path, save
-
-    env, act, meta, _ = _build(args, overrides)
-    folder = args.rollouts_dir / args.prefix
-    lock = _claim_prefix(folder, meta, env.cfg.to_dict(), args.force)
-    try:
-        shapes = [args.shape] * len(seeds)
-        for r in record_many(env.cfg, act, seeds, shapes, meta):
-            seed = r.seed
-            save(r, rollout_path(args.prefix, seed, args.rollouts_dir))
-            note = f"  FAILED: {r.meta['failure']}" if r.meta.get("failure") else ""
-            print(f"seed {seed:4d} {r.shape:6s} mean error {100 * r.error.mean():6.2f} cm{note}")
-    finally:
-        lock.close()
-    print(f"wrote {len(seeds)} rollouts to {folder}/")
+    ctrl = _controller(args, args.controller, overrides)
+    n = harness.write_set(ctrl, seeds, args.shape, args.rollouts_dir, args.prefix, args.force)
+    print(f"wrote {n} rollouts to {args.rollouts_dir / args.prefix}/")
 
 
 def compare_pair(args: Args) -> tuple[str, str] | None:
@@ -224,20 +163,26 @@ def compare_pair(args: Args) -> tuple[str, str] | None:
 
 def write_video(args: Args, seed: int, overrides: dict) -> None:
     from .. import video
+    from ..env import PandaLeadEnv
     from ..rollout import record
 
     names = compare_pair(args) or (args.controller,)
     # Each controller is built as if run alone, so its meta (and the label drawn from it) says
-    # what really drove it; every side then runs on one env, the policy's (from its sidecar)
-    # when one side is the policy, so both track the same task and the model loads once.
-    built = {n: _build(dataclasses.replace(args, controller=n, compare=None), overrides)
-             for n in dict.fromkeys(names)}
-    env = built["policy"][0] if "policy" in built else built[names[0]][0]
-    rollouts = [record(env, built[n][1], seed, args.shape, built[n][2]) for n in names]
-    for other_env, *_ in built.values():
-        other_env.close()
-    out = Path(args.video)
-    video.write(out, rollouts, env.core.model)  # a failed write is a UserError, old file kept
+    # what really drove it; every side then plays the policy's env (from its sidecar) when one
+    # side is the policy, so both track the same task.
+    built = {n: _controller(args, n, overrides, model_for_env=True) for n in dict.fromkeys(names)}
+    config = built["policy"].config if "policy" in built else built[names[0]].config
+    env = PandaLeadEnv(config, render_mode="rgb_array")
+    try:
+        rollouts = [record(env, built[n].act_for([seed], [args.shape]), seed, args.shape,
+                           built[n].meta) for n in names]
+        out = Path(args.video)
+        video.write(out, rollouts, env.core.model)  # a failed write is a UserError, old file kept
+    except KeyboardInterrupt:
+        raise UserError(f"interrupted; {args.video} was not written (any previous file is "
+                        "intact)") from None
+    finally:
+        env.close()
     pairs = zip(names, rollouts, strict=True)
     summary = ", ".join(f"{n} {100 * r.error.mean():.2f} cm" for n, r in pairs)
     print(f"seed {seed} ({rollouts[0].shape}): mean error {summary}; wrote {out}")
@@ -253,7 +198,11 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
 
     import mujoco.viewer
 
-    env, act, _, _ = _build(args, overrides)
+    from ..env import PandaLeadEnv
+
+    ctrl = _controller(args, args.controller, overrides)
+    act = ctrl.act_for([seed], [args.shape])
+    env = PandaLeadEnv(ctrl.config)
     obs, _ = env.reset(seed=seed, options={"traj_seed": seed, **(
         {"shape": args.shape} if args.shape else {})})
     data = env.core.get_data(0)
@@ -272,7 +221,7 @@ def run_controller_cli(default_controller: str, default_prefix: str, argv, prog:
                        description: str | None = None) -> None:
     from . import models as model_commands
 
-    if model_commands.wants(argv):  # --restore-sidecar (and --adopt): the model-file commands
+    if model_commands.wants(argv):  # --restore-sidecar, --adopt: the model-file commands
         model_commands.main(list(argv), prog)
         return
     defaults = Args(controller=default_controller, prefix=default_prefix)

@@ -1,0 +1,130 @@
+"""The ceiling: an iterative-learning-control (ILC) ORACLE for the lead.
+
+Not a controller anyone could deploy. For each trajectory it replays the whole episode again
+and again, from the same start, and corrects its lead sequence with the errors the previous
+replay made: it sees the future (the whole target path) and the plant (its exact response),
+which no policy does. What it reaches is a bound on what a bounded Cartesian lead on this
+IK+PD core can do, so every learned result can be read against it.
+
+The update, per trajectory, iteration j -> j+1 (``leads`` is (T, 3), one lead per control step,
+the error e[k] = target - tip after step k):
+
+    leads[k] += gain * smooth(e)[k + shift]        clipped to +-max_lead per axis
+
+A lead applied in step k moves the tip only in later steps, and the IK+PD lags by a few steps,
+so a lead is corrected by the error ``shift`` steps after it; ``smooth`` is a centred moving
+average over ``taps`` steps (it keeps the correction from amplifying step-to-step noise).
+A replay that does not lower a trajectory's mean error is discarded for that trajectory (the
+best sequence so far is kept) and that trajectory's gain is halved for its next try. The
+gain, shift, first replay and number of iterations are chosen on the tuning seeds
+(`uv run studies/ilc_tune.py`), never the test seeds. Every replay of every trajectory runs as
+one batch, like every other controller.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .config import EnvConfig
+from .errors import UserError, check_typed_fields
+from .rollout import Rollout, iter_record
+
+INITS = ("analytic", "zero", "policy")
+
+
+@dataclass(frozen=True)
+class ILCConfig:
+    """The oracle's settings (defaults chosen on the tuning seeds: results/ilc_tuning.md)."""
+
+    gain: float = field(default=0.5, metadata={"range": (0.0, 2.0)})
+    """Share of the (shifted, smoothed) error added to the lead per iteration."""
+    shift: int = field(default=3, metadata={"range": (0, 50)})
+    """The lead of step k is corrected by the error this many steps later."""
+    taps: int = field(default=5, metadata={"range": (1, 51)})
+    """Width (steps) of the centred moving average applied to the error."""
+    iterations: int = field(default=20, metadata={"range": (0, 500)})
+    """Replays after the first (each one episode per trajectory)."""
+    init: str = "analytic"
+    """The first replay's lead: analytic (the analytic lead), zero (classical) or policy (a
+    model's, given with --model)."""
+
+    def __post_init__(self):
+        check_typed_fields(self, "ilc.")
+        if self.init not in INITS:
+            raise UserError(f"ilc.init must be one of {', '.join(INITS)}, got {self.init!r}")
+
+
+def smooth(x: np.ndarray, taps: int) -> np.ndarray:
+    """Centred moving average over ``taps`` steps along axis 1 of (N, T, 3); near the ends the
+    window shrinks to the steps that exist."""
+    if taps <= 1:
+        return x
+    steps = x.shape[1]
+    c = np.concatenate([np.zeros_like(x[:, :1]), np.cumsum(x, axis=1)], axis=1)
+    k = np.arange(steps)
+    lo = np.maximum(k - taps // 2, 0)
+    hi = np.minimum(k - taps // 2 + taps, steps)
+    return (c[:, hi] - c[:, lo]) / (hi - lo)[None, :, None]
+
+
+def replay_controller(leads: np.ndarray, seeds, max_lead: float):
+    """An act function that plays a fixed lead sequence per trajectory seed: slot i (whatever
+    batch it is in) looks its row up by its trajectory seed and reads the row at its step."""
+    order = np.argsort(np.asarray(seeds))
+    sorted_seeds = np.asarray(seeds)[order]
+    scale = 1.0 / max_lead if max_lead > 0 else 0.0
+
+    def act(obs, task) -> np.ndarray:
+        rows = order[np.searchsorted(sorted_seeds, task.traj_seeds)]
+        k = np.minimum(task.core.step_count, leads.shape[1] - 1)
+        return (leads[rows, k] * scale).astype(np.float32)
+
+    return act
+
+
+def _play(config: EnvConfig, act, seeds, shapes, nthread: int) -> list[Rollout]:
+    return list(iter_record(config, act, seeds, shapes, nthread=nthread))
+
+
+def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthread: int = 0,
+                on_iteration=None) -> tuple[np.ndarray, list[float]]:
+    """Run the oracle on every seed at once -> (best lead sequences (N, T, 3) in metres, the
+    mean error (cm) over all seeds after each replay, the first replay included).
+    ``init_act`` is the first replay's controller; ``on_iteration(j, mean_cm)`` reports."""
+    if config.action != "lead":
+        raise UserError("the ILC oracle corrects a Cartesian lead: it needs action 'lead'")
+    seeds = [int(s) for s in seeds]
+    if len(set(seeds)) != len(seeds):
+        raise UserError("the ILC oracle needs each trajectory seed once")
+    bound = config.max_lead
+    rollouts = _play(config, init_act, seeds, shapes, nthread)
+    leads = np.stack([r.lead for r in rollouts])
+    best_err = np.array([r.error.mean() for r in rollouts])
+    errors = np.stack([r.target_pos - r.ee_pos for r in rollouts])
+    history = [float(100 * best_err.mean())]
+    if on_iteration:
+        on_iteration(0, history[-1])
+    steps = leads.shape[1]
+    ahead = np.minimum(np.arange(steps) + ilc.shift, steps - 1)
+    gain = np.full((len(seeds), 1, 1), ilc.gain)
+    for j in range(1, ilc.iterations + 1):
+        trial = np.clip(leads + gain * smooth(errors, ilc.taps)[:, ahead], -bound, bound)
+        played = _play(config, replay_controller(trial, seeds, bound), seeds, shapes, nthread)
+        err = np.array([r.error.mean() for r in played])
+        better = err < best_err  # keep only improvements, trajectory by trajectory
+        leads[better] = trial[better]
+        best_err[better] = err[better]
+        gain[~better] *= 0.5
+        for i in np.flatnonzero(better):
+            errors[i] = played[i].target_pos - played[i].ee_pos
+        history.append(float(100 * best_err.mean()))
+        if on_iteration:
+            on_iteration(j, history[-1])
+    return leads, history
+
+
+def oracle_meta(ilc: ILCConfig) -> dict:
+    """What a rollout of the oracle records about it (rollout meta "ilc")."""
+    return {"oracle": True, **asdict(ilc)}
