@@ -179,7 +179,7 @@ def test_cli_table_breakdown_and_plot(root):
     p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned",
                 "--label-a", "Alpha", "--label-b", "Beta", "--breakdown", "--plot", str(png))
     assert p.returncode == 0, p.stderr
-    assert "n=4 pairs duration=1.00s" in p.stdout
+    assert "n=4 seeds; failures charged: Alpha 0, Beta 0; duration=1.00s" in p.stdout
     assert "Alpha" in p.stdout and "Beta" in p.stdout
     assert "shape circle" in p.stdout and "shape fig8" in p.stdout and "per seed" in p.stdout
     assert "warning: seeds only in learned, not compared: [9]" in p.stdout
@@ -289,30 +289,48 @@ def test_no_claim_from_a_handful_of_pairs():
 # ---- silently wrong numbers: regressions ----------------------------------------------------
 
 
-def test_non_finite_seed_is_left_out_of_both_sets():
+def _frozen_error_cm(r, from_row: int, tip) -> np.ndarray:
+    """The charge, computed independently: the real trajectory's target after ``from_row``,
+    against a tip frozen at ``tip``."""
+    from panda_lead import trajectory
+
+    times = DT * np.arange(from_row + 1, int(round(r.duration / DT)) + 1)
+    target = trajectory.sample(r.seed, r.shape).at(times)[0]
+    return 100 * np.linalg.norm(target - tip, axis=1)
+
+
+def test_a_non_finite_episode_is_charged_not_left_out():
+    """Regression (issue 22): a seed with NaN or inf in either set was dropped from both, so
+    a controller's own failures left its score. Now it stays in and pays: from the first
+    non-finite step on, the arm counts as frozen where it was while the target moves on."""
     a, b = offsets_sets([0.03] * 5, [0.01] * 5)
     b[2].ee_pos[10, 1] = np.nan
     a[4].qvel[3, 0] = np.inf
     cmp = metrics.compare(a, b, n_boot=300)
-    assert cmp.seeds == [0, 1, 3]
-    for row in cmp.rows:
-        if row.key != "out_reach_err":
-            assert row.n_a == row.n_b == row.n_pairs == 3, row.key
-    assert set(cmp.pairing.nonfinite) == {2, 4}
-    assert "ee_pos" in cmp.pairing.nonfinite[2][0] and "qvel" in cmp.pairing.nonfinite[4][0]
+    assert cmp.seeds == [0, 1, 2, 3, 4]
+    assert cmp.row("mean_err").n_pairs == 5
+    charged = cmp.pairing.charged
+    assert set(charged["A"]) == {4} and set(charged["B"]) == {2}
+    assert "non-finite ee_pos from 0.10 s" in charged["B"][2]
+    assert "qvel" in charged["A"][4]
+    want = np.concatenate([100 * b[2].error[:10], _frozen_error_cm(b[2], 10, b[2].ee_pos[9])])
+    assert cmp.metrics_b[2]["mean_err"] == pytest.approx(want.mean())
+    assert cmp.metrics_b[2]["mean_err"] > 1.0  # worse than the 1 cm it held before failing
     lines = cmp.pairing.warnings()
-    assert len(lines) == 1 and "both sets" in lines[0] and "2 (" in lines[0] and "4 (" in lines[0]
+    assert len(lines) == 2 and all("charged" in line for line in lines)
 
 
-def test_failed_and_short_episodes_are_left_out_of_both_sets():
+def test_failed_and_short_episodes_are_charged():
     a, b = offsets_sets([0.03] * 5, [0.01] * 5)
     b[1].meta["failure"] = "unstable"
     a[3] = offset_rollout(0.03, T=15, seed=3, duration=1.0)  # stopped after 15 of 100 steps
     cmp = metrics.compare(a, b, n_boot=300)
-    assert cmp.seeds == [0, 2, 4]
-    assert set(cmp.pairing.failed) == {1, 3}
-    assert "unstable" in cmp.pairing.failed[1][0]
-    assert "15 of 100 steps" in cmp.pairing.failed[3][0]
+    assert cmp.seeds == [0, 1, 2, 3, 4]
+    assert "unstable" in cmp.pairing.charged["B"][1]
+    assert "ended after 15 of 100 steps" in cmp.pairing.charged["A"][3]
+    want = np.concatenate([100 * a[3].error, _frozen_error_cm(a[3], 15, a[3].ee_pos[14])])
+    assert cmp.metrics_a[3]["mean_err"] == pytest.approx(want.mean())
+    assert "failures charged: A 1, B 1" in cmp.pairing.counts()
 
 
 def test_a_set_holding_two_controllers_is_refused():
@@ -438,7 +456,7 @@ def test_cli_headline_three_sets(tmp_path):
     p = run_cli("--root", str(tmp_path), "--headline", "ikpd", "analytic", "eval",
                 "--plot", str(png))
     assert p.returncode == 0, p.stderr
-    assert "n=15 seeds in every set (Classical, Analytic, RL+Lead)" in p.stdout
+    assert "n=15 seeds; failures charged: Classical 0, Analytic 0, RL+Lead 0" in p.stdout
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     p = run_cli("--root", str(tmp_path), "--headline", "ikpd", "--plot", str(png))
     assert p.returncode == 2 and "2 or more" in p.stderr
@@ -476,7 +494,7 @@ def test_cli_bad_number_is_one_error_line(root, opt):
     assert p.stderr.startswith(f"error: {opt[0]} must be finite")
 
 
-def test_cli_non_finite_and_failed_seeds_named_and_n_counts_pairs_used(root):
+def test_cli_non_finite_and_failed_seeds_are_charged_and_named(root):
     r = rollout.load(rollout.rollout_path("learned", 2, root))
     r.ee_pos[5, 0] = np.nan
     rollout.save(r, rollout.rollout_path("learned", 2, root))
@@ -485,12 +503,12 @@ def test_cli_non_finite_and_failed_seeds_named_and_n_counts_pairs_used(root):
     rollout.save(r, rollout.rollout_path("base", 1, root))
     p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned")
     assert p.returncode == 0, p.stderr
-    assert "n=2 pairs" in p.stdout
-    nonfinite = [ln for ln in p.stdout.splitlines() if ln.startswith("warning: non-finite")]
-    failed = [ln for ln in p.stdout.splitlines() if ln.startswith("warning: failed")]
+    assert "n=4 seeds; failures charged: base 1, learned 1" in p.stdout  # no seed left out
+    charged = [ln for ln in p.stdout.splitlines() if "charged as if the arm froze" in ln]
     # Both sets record the same controller ("test"), so their prefixes name them.
-    assert len(nonfinite) == 1 and "2 (learned: ee_pos)" in nonfinite[0]
-    assert len(failed) == 1 and "1 (base: unstable)" in failed[0]
+    assert len(charged) == 2
+    assert "warning: base: 1 failed" in charged[0] and "1 (unstable at 1.00 s)" in charged[0]
+    assert "warning: learned: 1" in charged[1] and "2 (non-finite ee_pos from 0.05 s)" in charged[1]
 
 
 def test_cli_names_each_set_by_its_controller_by_default(tmp_path):

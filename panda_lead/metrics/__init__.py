@@ -4,9 +4,9 @@
 from .pairing import (  # noqa: F401
     Comparison,
     Pairing,
+    charged,
     check_sets,
     compare,
-    failure_reason,
     load_set,
     pair,
     seed_ranges,

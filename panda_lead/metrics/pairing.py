@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import rollout
+from .. import rollout, trajectory
 from ..errors import UserError
 from ..rollout import Rollout
 from .stats import Row, rollout_metrics, summarize
@@ -72,14 +72,19 @@ def seed_ranges(seeds) -> str:
 
 
 def check_one_controller(rs: dict[int, Rollout], name: str) -> None:
-    """UserError if a set mixes (controller, model) pairs in its rollouts' meta."""
+    """UserError if a set mixes identities (rollout.identity: controller, model hash,
+    controller settings, env): the same rule the rollout writer applies."""
     groups: dict[tuple, list[int]] = {}
     for s, r in rs.items():
-        groups.setdefault((r.meta.get("controller"), r.meta.get("model")), []).append(s)
+        groups.setdefault(rollout.identity(r.meta), []).append(s)
     if len(groups) > 1:
-        mix = "; ".join(f"controller={c} model={m} (seeds {seed_ranges(ss)})"
-                        for (c, m), ss in sorted(groups.items(), key=lambda kv: min(kv[1])))
-        raise UserError(f"{name} mixes {len(groups)} controllers, one set must hold one: {mix}")
+        items = sorted(groups.items(), key=lambda kv: min(kv[1]))
+        names = [f"controller={k[0]}" + (f" model {k[1][:12]}" if k[1] else "") for k, _ in items]
+        same = "" if len(set(names)) == len(names) else " (the same controller, other settings)"
+        mix = "; ".join(f"{n} (seeds {seed_ranges(ss)})"
+                        for n, (_, ss) in zip(names, items, strict=True))
+        raise UserError(f"{name} mixes {len(groups)} controllers{same}, one set must hold "
+                        f"one: {mix}")
 
 
 def check_sets(sets: dict[str, dict[int, Rollout]]) -> None:
@@ -114,65 +119,102 @@ def nonfinite_arrays(r: Rollout) -> list[str]:
             if not np.all(np.isfinite(np.asarray(getattr(r, k), dtype=float)))]
 
 
-def failure_reason(r: Rollout) -> str | None:
-    """Why an episode is not a full one: its meta failure, or fewer steps than its duration."""
-    if r.meta.get("failure"):
-        return str(r.meta["failure"])
+# A failed episode that has no finite tip at all is charged this error (m) at every step.
+NO_TIP_CHARGE_M = 1.0
+
+
+def charged(r: Rollout) -> tuple[Rollout, str | None]:
+    """A full-length rollout to score, and why it was charged (None: played in full).
+
+    An episode that ended early (an unstable simulation, or self-collision when the env
+    terminates on it) or holds non-finite values from some step on is never excused: it is
+    scored as if the arm froze where it last had a finite tip while the target went on along
+    its path (recomputed from the trajectory's seed and shape), so every step it missed counts
+    with that error. A controller that fails pays for it in every metric."""
     expected = int(round(r.duration / r.dt))
-    if len(r.t) < expected:
-        return f"{len(r.t)} of {expected} steps"
-    return None
+    rows = np.ones(len(r.t), dtype=bool)
+    for k in rollout.ARRAY_KEYS:
+        a = np.asarray(getattr(r, k), dtype=float).reshape(len(r.t), -1)
+        rows &= np.isfinite(a).all(axis=1)
+    ok = len(r.t) if rows.all() else int(np.argmin(rows))
+    failure = r.meta.get("failure")
+    if ok >= expected and not failure:
+        return r, None
+    if failure:
+        reason = f"{failure} at {ok * r.dt:.2f} s"
+    elif ok < len(r.t):
+        reason = f"non-finite {', '.join(nonfinite_arrays(r))} from {ok * r.dt:.2f} s"
+    else:
+        reason = f"ended after {len(r.t)} of {expected} steps"
+    times = np.arange(1, expected + 1) * r.dt
+    pos, vel, acc = trajectory.sample(r.seed, r.shape).at(times[ok:])
+    n_more = expected - ok
+
+    def grow(key: str, tail) -> np.ndarray:
+        head = np.asarray(getattr(r, key))[:ok]
+        tail = np.broadcast_to(tail, (n_more, *head.shape[1:])).astype(head.dtype)
+        return np.concatenate([head, tail])
+
+    frozen_tip = (np.asarray(r.ee_pos)[ok - 1] if ok
+                  else pos[0] + np.array([NO_TIP_CHARGE_M, 0.0, 0.0]))
+    q = np.asarray(r.qpos)[ok - 1] if ok else np.zeros(np.asarray(r.qpos).shape[1:])
+    fields = dict(t=times, ee_pos=grow("ee_pos", frozen_tip), target_pos=grow("target_pos", pos),
+                  target_vel=grow("target_vel", vel), target_acc=grow("target_acc", acc),
+                  lead=grow("lead", 0.0), qpos=grow("qpos", q), qvel=grow("qvel", 0.0),
+                  self_collision=grow("self_collision", False),
+                  collision_depth=grow("collision_depth", 0.0),
+                  reachable=grow("reachable", trajectory.reachable(pos)))
+    return Rollout(**fields, meta={**r.meta, "charged": reason}), reason
 
 
 @dataclass
 class Pairing:
-    """Which seeds every set can be compared on, and why the others were left out."""
+    """Which seeds the sets are compared on (every seed in all of them), the rollouts to score
+    (failed episodes charged, see `charged`), and which seeds were charged and why."""
 
-    seeds: list[int]  # used: in every set, finite, full episodes
+    seeds: list[int]  # in every set: all compared, none left out
     unpaired: dict[str, list[int]]  # per set: seeds missing from some other set
-    nonfinite: dict[int, list[str]]  # seed -> "set: arrays" (left out of every set)
-    failed: dict[int, list[str]]  # seed -> "set: reason" (left out of every set)
+    scored: dict[str, dict[int, Rollout]]  # per set: the rollouts metrics are computed on
+    charged: dict[str, dict[int, str]]  # per set: seed -> why it was charged
 
     def warnings(self, unpaired: bool = True) -> list[str]:
-        """One line per kind of exclusion, naming the seeds."""
-        both = "both sets" if len(self.unpaired) == 2 else "every set"
+        """One line per kind of irregularity, naming the seeds: unpaired seeds, and failures
+        charged in each set (counted, never left out)."""
         lines = [f"warning: seeds only in {name}, not compared: {seeds}"
                  for name, seeds in self.unpaired.items() if seeds and unpaired]
-        for what, bad in (("non-finite values", self.nonfinite), ("failed episodes", self.failed)):
+        for name, bad in self.charged.items():
             if bad:
-                desc = ", ".join(f"{s} ({'; '.join(v)})" for s, v in sorted(bad.items()))
-                lines.append(f"warning: {what}, seeds left out of {both}: {desc}")
+                desc = ", ".join(f"{s} ({why})" for s, why in sorted(bad.items()))
+                lines.append(f"warning: {name}: {len(bad)} failed episode(s) charged as if the "
+                             f"arm froze where it failed: {desc}")
         return lines
+
+    def counts(self) -> str:
+        """'n=1000 seeds; failures charged: A 0, B 3'."""
+        parts = ", ".join(f"{name} {len(bad)}" for name, bad in self.charged.items())
+        return f"n={len(self.seeds)} seeds; failures charged: {parts}"
 
 
 def pair(sets: dict[str, dict[int, Rollout]]) -> Pairing:
-    """Seeds present in every set, minus any seed whose rollout in any set has non-finite
-    values or is a failed episode: such a seed is left out of every set, so all sets are
-    always compared on the same seeds."""
-    keys = [set(rs) for rs in sets.values()]
-    common = sorted(set.intersection(*keys))
+    """Every seed present in all sets is compared; a failed episode stays in, charged (see
+    `charged`), so all sets are compared on the same seeds and no failure is excused."""
+    common = sorted(set.intersection(*(set(rs) for rs in sets.values())))
     unpaired = {name: sorted(set(rs) - set(common)) for name, rs in sets.items()}
-    nonfinite: dict[int, list[str]] = {}
-    failed: dict[int, list[str]] = {}
-    for s in common:
-        for name, rs in sets.items():
-            bad = nonfinite_arrays(rs[s])
-            if bad:
-                nonfinite.setdefault(s, []).append(f"{name}: {', '.join(bad)}")
-            reason = failure_reason(rs[s])
-            if reason:
-                failed.setdefault(s, []).append(f"{name}: {reason}")
-    used = [s for s in common if s not in nonfinite and s not in failed]
-    return Pairing(used, unpaired, nonfinite, failed)
+    scored: dict[str, dict[int, Rollout]] = {}
+    charges: dict[str, dict[int, str]] = {}
+    for name, rs in sets.items():
+        scored[name], charges[name] = {}, {}
+        for s in common:
+            scored[name][s], why = charged(rs[s])
+            if why:
+                charges[name][s] = why
+    return Pairing(common, unpaired, scored, charges)
 
 
 def require_seeds(p: Pairing, sets: dict[str, dict[int, Rollout]]) -> None:
-    if p.seeds:
-        return
-    if not any(p.nonfinite) and not any(p.failed):
+    if not p.seeds:
         desc = ", ".join(f"{name} has {seed_ranges(rs)}" for name, rs in sets.items())
         raise UserError(f"no seeds in common: {desc}")
-    raise UserError("no seeds left to compare: " + " ".join(p.warnings()).replace("warning: ", ""))
 
 
 @dataclass
@@ -189,7 +231,7 @@ class Comparison:
     metrics_b: dict[int, dict[str, float]]
     rows: list[Row]
     by_shape: dict[str, list[Row]] = field(default_factory=dict)
-    pairing: Pairing | None = None  # with the non-finite and failed seeds left out of both
+    pairing: Pairing | None = None  # the scored rollouts, failures charged
 
     def row(self, key: str, shape: str | None = None) -> Row:
         rows = self.rows if shape is None else self.by_shape[shape]
@@ -208,6 +250,7 @@ def compare(
     p = pair(sets)
     require_seeds(p, sets)
     seeds = p.seeds
+    a, b = p.scored[label_a], p.scored[label_b]
     ma = {s: rollout_metrics(a[s], settle_time, band_cm, tight_band_cm) for s in seeds}
     mb = {s: rollout_metrics(b[s], settle_time, band_cm, tight_band_cm) for s in seeds}
     shapes = {s: a[s].shape for s in seeds}
