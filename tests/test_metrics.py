@@ -561,3 +561,43 @@ def test_sets_that_would_share_a_name_are_named_by_their_prefixes():
                                 ["ikpd", "v5", "v9"])
     assert labels == ["Classical", "v5", "v9"]
     assert metrics.set_labels([one("test"), one("test")], ["analytic", "mine"]) == ["Analytic", "mine"]
+
+
+def test_holm_adjusts_a_family_of_p_values():
+    from panda_lead.metrics.stats import holm
+
+    # Sorted 0.01, 0.03, 0.04, 0.5 of m=4: 4*0.01, 3*0.03, max(2*0.04, 0.09), max(0.5, 0.09).
+    assert holm([0.01, 0.04, 0.03, float("nan"), 0.5]) == pytest.approx(
+        [0.04, 0.09, 0.09, float("nan"), 0.5], nan_ok=True)
+
+
+def test_a_shown_but_tiny_difference_is_called_negligible():
+    a, b = offsets_sets([0.030] * 12, [0.0298] * 12)  # 0.02 cm better everywhere
+    row = metrics.compare(a, b, n_boot=300).row("mean_err")
+    assert metrics.shown(row.ci)
+    assert "mean diff -0.02 [-0.02, -0.02] shown, negligible (|diff| < 0.05)" in metrics.claim(row)
+
+
+def test_share_of_the_achievable_gain_captured():
+    from panda_lead.metrics.stats import share_captured
+
+    base = np.full(50, 4.0) + np.linspace(0, 1, 50)
+    share, (lo, hi) = share_captured(base, base - 1.5, base - 3.0, n_boot=500)
+    assert share == pytest.approx(0.5) and lo == pytest.approx(0.5) and hi == pytest.approx(0.5)
+    rng = np.random.default_rng(1)
+    share, (lo, hi) = share_captured(base, base - 1.5 + rng.normal(0, 0.3, 50), base - 3.0,
+                                     n_boot=2000)
+    assert lo < share < hi and lo < 0.5 < hi
+
+
+def test_differences_by_target_speed_bins_hold_every_seed_once():
+    a = {s: offset_rollout(0.03, seed=s) for s in range(20)}
+    b = {s: offset_rollout(0.01 if s < 10 else 0.05, seed=s) for s in range(20)}
+    for s in range(20):  # faster targets for higher seeds
+        for r in (a[s], b[s]):
+            r.target_vel[:] = [0.1 * (s + 1), 0.0, 0.0]
+    cmp = metrics.compare(a, b, n_boot=300, speed_bins=2)
+    assert [n for _, _, rows in cmp.by_speed for n in [rows[0].n_pairs]] == [10, 10]
+    (lo1, hi1, slow), (lo2, hi2, fast) = cmp.by_speed
+    assert lo1 == pytest.approx(0.1) and hi2 == pytest.approx(2.0)
+    assert slow[0].delta == pytest.approx(-2.0) and fast[0].delta == pytest.approx(2.0)

@@ -15,7 +15,7 @@ import numpy as np
 from .. import rollout, trajectory
 from ..errors import UserError
 from ..rollout import Rollout
-from .stats import Row, rollout_metrics, summarize
+from .stats import Row, peak_speed, rollout_metrics, summarize
 
 # Display names for the usual prefixes (--headline without --labels).
 CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead"}
@@ -232,6 +232,8 @@ class Comparison:
     rows: list[Row]
     by_shape: dict[str, list[Row]] = field(default_factory=dict)
     pairing: Pairing | None = None  # the scored rollouts, failures charged
+    # (low, high peak speed in m/s, rows over the seeds whose target peaks in [low, high])
+    by_speed: list[tuple[float, float, list[Row]]] = field(default_factory=list)
 
     def row(self, key: str, shape: str | None = None) -> Row:
         rows = self.rows if shape is None else self.by_shape[shape]
@@ -241,9 +243,10 @@ class Comparison:
 def compare(
     a: dict[int, Rollout], b: dict[int, Rollout], settle_time: float = 0.5,
     band_cm: float = 5.0, n_boot: int = 10000, ci_seed: int = 0,
-    label_a: str = "A", label_b: str = "B", tight_band_cm: float = 2.0,
+    label_a: str = "A", label_b: str = "B", tight_band_cm: float = 2.0, speed_bins: int = 5,
 ) -> Comparison:
-    """Pair the two sets by seed and summarise every metric overall and per shape."""
+    """Pair the two sets by seed and summarise every metric overall, per shape and per
+    equal-count bin of the target's peak speed."""
     check_options(settle_time, band_cm, tight_band_cm, n_boot, ci_seed)
     sets = {label_a: a, label_b: b}
     check_sets(sets)
@@ -260,10 +263,19 @@ def compare(
         sh: summarize(ma, mb, [s for s in seeds if shapes[s] == sh], **summ)
         for sh in sorted(set(shapes.values()))
     }
+    speed = {s: peak_speed(a[s]) for s in seeds}
+    edges = np.unique(np.quantile(list(speed.values()), np.linspace(0, 1, speed_bins + 1)))
+    by_speed = []
+    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        last = k == len(edges) - 2
+        group = [s for s in seeds if lo <= speed[s] and (speed[s] < hi or last)]
+        if group:
+            by_speed.append((float(lo), float(hi), summarize(ma, mb, group, **summ)))
     first = a[seeds[0]]
     return Comparison(
         label_a, label_b, seeds, p.unpaired[label_a], p.unpaired[label_b],
         first.duration, first.dt, shapes, ma, mb, summarize(ma, mb, seeds, **summ), by_shape, p,
+        by_speed,
     )
 
 

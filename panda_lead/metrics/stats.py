@@ -31,21 +31,24 @@ class Metric:
     label: str  # "{band}" / "{tight}" are filled with the band widths in cm
     fmt: str
     better: str  # LOWER or HIGHER: which direction counts as an improvement
+    # A shown difference smaller than this (in the metric's unit) is called negligible: about
+    # the printed precision, far below what a user of the arm would notice.
+    negligible: float
 
 
 METRICS = (
-    Metric("mean_err", "mean error (cm)", ".2f", LOWER),
-    Metric("rmse", "RMSE (cm)", ".2f", LOWER),
-    Metric("max_err", "max error (cm)", ".2f", LOWER),
-    Metric("p95_err", "p95 error (cm)", ".2f", LOWER),
-    Metric("settled_err", "settled mean error (cm)", ".2f", LOWER),
-    Metric("in_band", "time within {band} cm (%)", ".1f", HIGHER),
-    Metric("in_band_tight", "time within {tight} cm (%)", ".1f", HIGHER),
-    Metric("in_reach_err", "in-reach error (cm)", ".2f", LOWER),
-    Metric("out_reach_err", "out-of-reach error (cm)", ".2f", LOWER),
-    Metric("in_band_reachable", "within {band} cm on reachable (%)", ".1f", HIGHER),
-    Metric("jerk_rms", "jerk RMS (m/s^3)", ".1f", LOWER),
-    Metric("self_collision", "self-collision time (%)", ".2f", LOWER),
+    Metric("mean_err", "mean error (cm)", ".2f", LOWER, 0.05),
+    Metric("rmse", "RMSE (cm)", ".2f", LOWER, 0.05),
+    Metric("max_err", "max error (cm)", ".2f", LOWER, 0.05),
+    Metric("p95_err", "p95 error (cm)", ".2f", LOWER, 0.05),
+    Metric("settled_err", "settled mean error (cm)", ".2f", LOWER, 0.05),
+    Metric("in_band", "time within {band} cm (%)", ".1f", HIGHER, 0.5),
+    Metric("in_band_tight", "time within {tight} cm (%)", ".1f", HIGHER, 0.5),
+    Metric("in_reach_err", "in-reach error (cm)", ".2f", LOWER, 0.05),
+    Metric("out_reach_err", "out-of-reach error (cm)", ".2f", LOWER, 0.05),
+    Metric("in_band_reachable", "within {band} cm on reachable (%)", ".1f", HIGHER, 0.5),
+    Metric("jerk_rms", "jerk RMS (m/s^3)", ".1f", LOWER, 1.0),
+    Metric("self_collision", "self-collision time (%)", ".2f", LOWER, 0.1),
 )
 
 
@@ -176,6 +179,7 @@ class Row:
     median_ci: tuple[float, float]
     improved: int  # seeds where B is better than A
     p: float
+    p_holm: float = NAN  # p adjusted (Holm) over the metrics of one table
 
     @property
     def share_improved(self) -> float:
@@ -219,7 +223,47 @@ def summarize(
             len(d), mean_or_nan(d), paired_ci(d, n_boot, ci_seed),
             float(np.median(d)) if len(d) else NAN, median_ci(d, n_boot, ci_seed),
             n_improved(va, vb, m.better), wilcoxon_p(d)))
+    for row, p in zip(rows, holm([r.p for r in rows]), strict=True):
+        row.p_holm = p
     return rows
+
+
+def holm(pvalues) -> list[float]:
+    """Holm-Bonferroni adjusted p-values of a family of tests (NaN stays NaN): a table tests
+    a dozen metrics at once, and the adjusted p-value is what controls the chance of any false
+    claim among them at the level it is compared with."""
+    p = np.asarray(pvalues, dtype=float)
+    ok = np.flatnonzero(np.isfinite(p))
+    out = np.full(len(p), NAN)
+    m = len(ok)
+    running = 0.0
+    for rank, i in enumerate(ok[np.argsort(p[ok], kind="stable")]):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return out.tolist()
+
+
+def share_captured(base: np.ndarray, learned: np.ndarray, ceiling: np.ndarray,
+                   n_boot: int = 10000, seed: int = 0) -> tuple[float, tuple[float, float]]:
+    """(base - learned) / (base - ceiling) of the mean over seeds, and its 95% percentile
+    bootstrap CI (the three values of a seed resampled together): the share of the gain the
+    ceiling achieves over the base that the learned controller captures."""
+    v = np.stack([base, learned, ceiling], axis=1).astype(float)
+    v = v[np.isfinite(v).all(axis=1)]
+    if len(v) < 2:
+        return NAN, (NAN, NAN)
+
+    def ratio(m: np.ndarray) -> np.ndarray:
+        return (m[..., 0] - m[..., 1]) / (m[..., 0] - m[..., 2])
+
+    rng = np.random.default_rng(seed)
+    boots = np.empty(n_boot)
+    chunk = max(1, 2_000_000 // (3 * len(v)))
+    for i in range(0, n_boot, chunk):
+        k = min(chunk, n_boot - i)
+        boots[i:i + k] = ratio(v[rng.integers(0, len(v), size=(k, len(v)))].mean(axis=1))
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return float(ratio(v.mean(axis=0))), (float(lo), float(hi))
 
 
 def claim(row: Row, label_b: str = "B") -> str:
@@ -231,6 +275,9 @@ def claim(row: Row, label_b: str = "B") -> str:
         if not np.isfinite(value):
             return f"{name} diff n/a"
         verdict = "shown" if shown(ci) else "not shown"
+        small = BY_KEY[row.key].negligible
+        if shown(ci) and abs(value) < small:
+            verdict = f"shown, negligible (|diff| < {small:g})"
         if row.n_pairs < MIN_PAIRS_FOR_CLAIM:
             verdict = f"not shown (only {row.n_pairs} pairs, fewer than {MIN_PAIRS_FOR_CLAIM})"
         return f"{name} diff {fmt_num(value, fmt, True)} {fmt_ci(ci, fmt)} {verdict}"
