@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import tyro
 
 from panda_lead.errors import UserError, exit_on_user_error
@@ -41,10 +42,14 @@ class Args:
     """Folder for <question>.md and <question>.png."""
     bootstrap: int = 10000
     """Bootstrap resamples for the CIs."""
+    force: bool = False
+    """Replace existing <question>.md and .png."""
 
 
 def condition(question: str, level: float) -> dict:
-    """The env settings of one level (applied over each controller's own env)."""
+    """The env settings of one level. An evaluation starts from none of a model's own
+    training-only settings (harness.evaluation_config), so the level is exactly what every
+    controller sees: a policy trained with randomised delays gets exactly k steps here."""
     if question == "noise":
         s = level / 100.0
         return {"obs_noise": {"ee_pos": s, "target_pos": s, "ee_vel": 10 * s,
@@ -52,55 +57,62 @@ def condition(question: str, level: float) -> dict:
     k = int(level)
     if k != level or k < 0:
         raise UserError(f"delay levels are whole control steps >= 0, got {level}")
-    return {"obs_delay": k, "action_delay": k}
+    return {"obs_delay": k, "action_delay": k, "random_delay": False}
 
 
-def controllers_for(models: list[Path]) -> dict[str, tuple]:
-    """label -> (act_fn, base env settings) for classical, analytic and each model."""
-    from panda_lead import controllers
-    from panda_lead.models import load_policy
+def controllers_at(models: list[Path], level_settings: dict, steps: int) -> dict:
+    """label -> harness.Controller at one level: classical, analytic and each model."""
+    from panda_lead import harness
 
-    out = {"Classical": (controllers.classical, {}), "Analytic": (controllers.make_analytic(), {})}
+    out = {"Classical": harness.build("classical", steps, None, level_settings),
+           "Analytic": harness.build("analytic", steps, None, level_settings)}
     for path in models:
-        policy, env_config, _ = load_policy(path)
-        out[f"RL lead ({Path(path).stem})"] = (controllers.make_policy(policy), env_config)
+        out[f"RL lead ({Path(path).stem})"] = harness.build("policy", steps, path, level_settings)
     return out
 
 
-def play(act, base: dict, extra: dict, seeds: list[int]) -> dict:
-    from panda_lead.config import EnvConfig
-    from panda_lead.rollout import record_many
+def play(ctrl, seeds: list[int]) -> dict:
+    from panda_lead.rollout import iter_record
 
-    config = EnvConfig.from_dict({**base, **extra, "episode_steps": 500})
-    return {r.seed: r for r in record_many(config, act, seeds)}
+    return {r.seed: r for r in iter_record(ctrl.config, ctrl.act, seeds, meta=ctrl.meta)}
 
 
 @exit_on_user_error
 def main(args: Args) -> None:
-    from panda_lead.metrics import compare
+    from panda_lead.core import control_dt
+    from panda_lead.metrics import bootstrap_ci, compare
     from panda_lead.seeds import parse_seed_range
 
+    outputs = [args.out / f"{args.question}.md", args.out / f"{args.question}.png"]
+    if any(p.exists() for p in outputs) and not args.force:
+        raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
     levels = args.levels or ([0, 0.5, 1, 2] if args.question == "noise" else [0, 1, 2, 3])
     seeds = parse_seed_range(args.seeds)
-    ctrls = controllers_for(args.models)
+    steps = int(round(5.0 / control_dt()))
     unit = "cm" if args.question == "noise" else "steps"
-    rows, curves = [], {name: [] for name in ctrls}
+    rows, curves = [], {}
     t0 = time.perf_counter()
     for level in levels:
-        extra = condition(args.question, level)
-        sets = {name: play(act, base, extra, seeds) for name, (act, base) in ctrls.items()}
+        ctrls = controllers_at(args.models, condition(args.question, level), steps)
+        sets = {name: play(c, seeds) for name, c in ctrls.items()}
         for name, rs in sets.items():
             cmp = compare(sets["Analytic"], rs, n_boot=args.bootstrap, label_a="Analytic",
                           label_b=name)
             err, jerk = cmp.row("mean_err"), cmp.row("jerk_rms")
-            curves[name].append((level, err.mean_b, err.ci, jerk.mean_b))
-            rows.append((level, name, err, jerk))
+            errs = [cmp.metrics_b[s]["mean_err"] for s in cmp.seeds]
+            jerks = [cmp.metrics_b[s]["jerk_rms"] for s in cmp.seeds]
+            curves.setdefault(name, []).append(
+                (level, err.mean_b, bootstrap_ci(errs, n_boot=args.bootstrap), jerk.mean_b,
+                 bootstrap_ci(jerks, n_boot=args.bootstrap)))
+            rows.append((level, name, err, jerk, len(cmp.pairing.charged[name])))
             print(f"{args.question} {level:g} {unit}: {name:24s} error {err.mean_b:5.2f} cm, "
                   f"jerk {jerk.mean_b:6.1f} ({time.perf_counter() - t0:.0f} s)", flush=True)
         del sets
-    args.out.mkdir(parents=True, exist_ok=True)
     table = _table(args, rows, unit, seeds)
-    (args.out / f"{args.question}.md").write_text(table)
+    from panda_lead.atomicio import atomic_write
+
+    with atomic_write(outputs[0], ".tmp.md") as tmp:
+        Path(tmp).write_text(table)
     _figure(args, curves, unit, seeds)
     print(table)
 
@@ -115,39 +127,50 @@ def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:
     lines = [f"`uv run studies/robustness.py --question {args.question} --models "
              f"{' '.join(map(str, args.models))} --seeds {args.seeds}` ({len(seeds)} test seeds, "
              f"{time.strftime('%Y-%m-%d')}); differences are controller - analytic at the same "
-             "level, paired by seed, 95% bootstrap CIs.", "",
+             "level, paired by seed, 95% bootstrap CIs. Every controller sees exactly the "
+             "level (a model's own training noise or delay is not inherited); n = "
+             f"{len(seeds)} per row, failed episodes charged, none dropped.", "",
              f"| {args.question} ({unit}) | controller | mean error (cm) | vs analytic: mean diff | "
-             "median diff | better on | jerk RMS (m/s^3) | jerk vs analytic: mean diff |",
-             "|---|---|---|---|---|---|---|---|"]
-    for level, name, err, jerk in rows:
+             "median diff | better on | jerk RMS (m/s^3) | jerk vs analytic: mean diff | "
+             "failures charged |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for level, name, err, jerk, failed in rows:
         if name == "Analytic":
             lines.append(f"| {level:g} | {name} | {err.mean_b:.2f} | - | - | - | "
-                         f"{jerk.mean_b:.1f} | - |")
+                         f"{jerk.mean_b:.1f} | - | {failed} |")
             continue
         lines.append(f"| {level:g} | {name} | {err.mean_b:.2f} | {_fmt(err.delta, err.ci)} | "
                      f"{_fmt(err.median_delta, err.median_ci)} | "
                      f"{100 * err.improved / err.n_pairs:.0f}% | {jerk.mean_b:.1f} | "
-                     f"{_fmt(jerk.delta, jerk.ci)} |")
+                     f"{_fmt(jerk.delta, jerk.ci)} | {failed} |")
     return "\n".join(lines) + "\n"
 
 
 def _figure(args: Args, curves: dict, unit: str, seeds: list[int]) -> None:
+    """Mean error and jerk against the level, each point with its 95% bootstrap CI."""
     from panda_lead.metrics.figures import colours_for, pyplot, save_figure
 
     plt = pyplot()
-    fig, (ax_e, ax_j) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (ax_e, ax_j) = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
     colours = colours_for(list(curves))
-    for name, pts in curves.items():
-        x = [p[0] for p in pts]
-        ax_e.plot(x, [p[1] for p in pts], "o-", color=colours[name], label=name)
-        ax_j.plot(x, [p[3] for p in pts], "o-", color=colours[name], label=name)
-    ax_e.set(xlabel=f"{args.question} ({unit})", ylabel="mean tracking error (cm)")
-    ax_j.set(xlabel=f"{args.question} ({unit})", ylabel="tip jerk RMS (m/s^3)")
+    span = max(p[0] for pts in curves.values() for p in pts) or 1.0
+    for k, (name, pts) in enumerate(curves.items()):
+        dx = (k - (len(curves) - 1) / 2) * 0.012 * span  # keep overlapping bars apart
+        x = np.array([p[0] for p in pts]) + dx
+        for ax, i in ((ax_e, 1), (ax_j, 3)):
+            y = np.array([p[i] for p in pts])
+            lo, hi = (np.array([p[i + 1][q] for p in pts]) for q in (0, 1))
+            ax.errorbar(x, y, yerr=[y - lo, hi - y], fmt="o-", capsize=3, color=colours[name],
+                        label=name)
+    ax_e.set(xlabel=f"{args.question} ({unit})", ylabel="mean tracking error (cm), 95% CI")
+    ax_j.set(xlabel=f"{args.question} ({unit})", ylabel="tip jerk RMS (m/s^3), 95% CI")
+    levels = sorted({p[0] for pts in curves.values() for p in pts})
     for ax in (ax_e, ax_j):
         ax.grid(alpha=0.3)
-    ax_e.legend()
+        ax.set_xticks(levels)  # whole steps for the delay: no fractional ticks
+    fig.legend(*ax_e.get_legend_handles_labels(), loc="outside lower center",
+               ncol=min(4, len(curves)), fontsize="small")
     fig.suptitle(f"{args.question}: test seeds {seeds[0]}-{seeds[-1]}, n={len(seeds)} per point")
-    fig.tight_layout()
     save_figure(fig, args.out / f"{args.question}.png")
 
 
