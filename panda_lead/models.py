@@ -273,6 +273,42 @@ def bind_sidecar(model_path: Path) -> None:
         tmp_copy.unlink(missing_ok=True)
 
 
+LEGACY_ENV_MEMBER = "lead_env_config.json"
+
+
+def upgrade_legacy(model_path: Path) -> bool:
+    """A model saved before zips carried their sidecar (0.1: the zip carried only its env
+    config, as lead_env_config.json) gets its sidecar embedded, if and only if the pair is
+    intact: the JSON's model_sha256 matches the zip and the zip's env config matches the
+    JSON's. Returns whether it upgraded anything; a damaged pair is a ModelError."""
+    model_path = Path(model_path)
+    _check_zip_file(model_path)
+    with zipfile.ZipFile(model_path) as z:
+        names = z.namelist()
+    if SIDECAR_MEMBER in names:
+        return False
+    side = read_sidecar(model_path)
+    if side.get("model_sha256") != file_sha256(model_path) or LEGACY_ENV_MEMBER not in names:
+        raise ModelError(f"{model_path}: an older model whose sidecar is not bound to it; "
+                         "adopt it instead (`uv run eval.py --adopt`)")
+    stored = _read_json_member(model_path, LEGACY_ENV_MEMBER)
+    if EnvConfig.from_dict(stored) != EnvConfig.from_dict(side["env_config"]):
+        raise ModelError(f"{model_path}: its sidecar's env config differs from the one it "
+                         "carries")
+    if "policy" not in side:  # 0.1 sidecars before the policy block: the architecture trained
+        train = side.get("train_config") or {}
+        side["policy"] = {"net_arch": train.get("net_arch", [64, 64]), "activation_fn": "tanh",
+                          "log_std_init": float(train.get("log_std_init", 0.0))}
+    side.setdefault("rates", rates())
+    tmp_copy = model_path.with_name(f".{model_path.stem}.legacy.zip")
+    tmp_copy.write_bytes(model_path.read_bytes())
+    try:
+        write_pair(model_path, _copy_members(tmp_copy, (SIDECAR_MEMBER, LEGACY_ENV_MEMBER)), side)
+    finally:
+        tmp_copy.unlink(missing_ok=True)
+    return True
+
+
 def restore_sidecar(model_path: Path) -> Path:
     """Rewrite X.json from the sidecar the zip X.zip carries (after an interrupted write, or a
     JSON edited or lost)."""

@@ -1,0 +1,215 @@
+"""Training runs as committed summaries, so every spread table and every archived seed can be
+recomputed from git alone (run folders stay out of git: they are large and machine-local).
+
+    uv run studies/runs.py summarize --study v5 --runs sweeps/v5/runs/*/  # -> results/runs/v5/
+    uv run studies/runs.py baselines                                 # -> results/runs/baselines.json
+    uv run studies/runs.py report --study v5                         # spread table (markdown)
+    uv run studies/runs.py choose --study v5 [--archive-as indep_v5 --runs sweeps/v5/runs]
+
+A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
+commit, timesteps and wall time, its evaluation curve (evaluation-set error every
+eval_freq steps), its best evaluation, the SHA-256 of its best model, and that model's
+per-trajectory test metrics on the 1,000 test seeds (mean error, settled error, jerk). The
+baselines file holds the same per-trajectory metrics of the classical controller and the
+analytic lead, at 100 Hz and with the IK at 500 Hz. `report` and `choose` read only these
+files.
+
+The choice rule (`choose`): the run with the lowest best evaluation-set error (never a test
+seed); a tie (equal to 0.01 cm, the printed precision) goes to the lower training seed.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import tyro
+
+from panda_lead.errors import UserError, check_plain_name, exit_on_user_error
+
+RUNS_DIR = Path("results/runs")
+TEST = "0-999"
+KEYS = ("mean_err", "settled_err", "jerk_rms")
+
+
+@dataclass
+class Args:
+    command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose"]]
+    """What to do (see above)."""
+    runs: list[Path] = field(default_factory=list)
+    """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
+    choose --archive-as: the folder holding the study's run folders."""
+    study: str = "v5"
+    """The study's name: its summaries live in results/runs/<study>/."""
+    against: str = "analytic"
+    """report: the baseline each run is compared with (classical, analytic, classical_500hz,
+    analytic_500hz)."""
+    archive_as: str | None = None
+    """choose: archive the chosen run's best model under this name (needs its run folder)."""
+    force: bool = False
+    """Replace existing summaries, baselines or an archived name."""
+    bootstrap: int = 10000
+    """Bootstrap resamples for the CIs."""
+
+
+def _metrics_on_test(ctrl) -> dict[str, list[float]]:
+    from panda_lead.metrics import rollout_metrics
+    from panda_lead.metrics.pairing import charged
+    from panda_lead.rollout import iter_record
+    from panda_lead.seeds import parse_seed_range
+
+    seeds = parse_seed_range(TEST)
+    out: dict[str, list[float]] = {k: [] for k in KEYS}
+    for r in iter_record(ctrl.config, ctrl.act, seeds, meta=ctrl.meta):
+        m = rollout_metrics(charged(r)[0])  # a failure is charged, as in every table
+        for k in KEYS:
+            out[k].append(round(float(m[k]), 5))
+    return out
+
+
+def _eval_curve(run: Path) -> list[list[float]]:
+    with open(run / "tb" / "progress.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r.get("eval/mean_error_cm")]
+    return [[int(float(r["eval/timesteps"])), round(float(r["eval/mean_error_cm"]), 4)]
+            for r in rows]
+
+
+def summarize(args: Args) -> None:
+    from panda_lead import harness
+    from panda_lead.atomicio import atomic_write
+    from panda_lead.models import upgrade_legacy, verify
+
+    if not args.runs:
+        raise UserError("summarize needs run folders: --runs sweeps/NAME/runs/*/")
+    out_dir = RUNS_DIR / check_plain_name(args.study, "--study")
+    for run in args.runs:
+        run = Path(run)
+        best, final = run / "best_model.zip", run / "final_model.zip"
+        if not best.is_file() or not final.is_file():
+            raise UserError(f"{run}: not a finished run folder (no best_model.zip/final_model.zip)")
+        for model in (best, final):
+            upgrade_legacy(model)  # runs saved before models carried their sidecar
+        side, last = verify(best), verify(final)
+        config = side["train_config"]
+        path = out_dir / f"seed_{config['seed']}.json"
+        if path.exists() and not args.force:
+            print(f"{path} exists (add --force to redo it)")
+            continue
+        ctrl = harness.build("policy", 500, best)
+        summary = {"study": args.study, "run": run.name, "preset": config.get("preset"),
+                   "seed": config["seed"], "train_config": config, "commit": side.get("commit"),
+                   "timesteps": last["timesteps"], "wall_time_s": last.get("wall_time_s"),
+                   "eval_curve": _eval_curve(run),
+                   "best": json.loads((run / "best.json").read_text()),
+                   "best_model_sha256": side["model_sha256"], "test_seeds": TEST,
+                   "test": _metrics_on_test(ctrl)}
+        with atomic_write(path, ".tmp.json") as tmp:
+            Path(tmp).write_text(json.dumps(summary, indent=1) + "\n")
+        print(f"wrote {path}: test mean error {np.mean(summary['test']['mean_err']):.3f} cm")
+
+
+BASELINES = {"classical": ("classical", {}), "analytic": ("analytic", {}),
+             "classical_500hz": ("classical", {"ik": {"substep_ik": True}}),
+             "analytic_500hz": ("analytic", {"ik": {"substep_ik": True}})}
+
+
+def baselines(args: Args) -> None:
+    from panda_lead import harness
+    from panda_lead.atomicio import atomic_write
+
+    path = RUNS_DIR / "baselines.json"
+    if path.exists() and not args.force:
+        raise UserError(f"{path} exists; add --force to recompute it")
+    tau_500 = _tau_500hz()
+    out = {"test_seeds": TEST, "analytic_500hz_tau": tau_500}
+    for name, (kind, settings) in BASELINES.items():
+        tau = tau_500 if name == "analytic_500hz" else None
+        out[name] = _metrics_on_test(harness.build(kind, 500, None, settings, tau=tau))
+        print(f"{name}: test mean error {np.mean(out[name]['mean_err']):.3f} cm", flush=True)
+    with atomic_write(path, ".tmp.json") as tmp:
+        Path(tmp).write_text(json.dumps(out, indent=1) + "\n")
+
+
+def _tau_500hz() -> float:
+    """The analytic lead's tau with the IK at 500 Hz, as tuned on the tuning seeds
+    (`uv run studies/tau.py --env.ik.substep-ik True`, results/tau_500hz.txt)."""
+    text = Path("results/tau_500hz.txt").read_text()
+    return float(text.split("best tau")[1].split()[0])
+
+
+def load_study(study: str) -> list[dict]:
+    files = sorted((RUNS_DIR / check_plain_name(study, "--study")).glob("seed_*.json"))
+    if not files:
+        raise UserError(f"no summaries under {RUNS_DIR / study}/ (run `summarize` first)")
+    return sorted((json.loads(f.read_text()) for f in files), key=lambda s: s["seed"])
+
+
+def choose_run(runs: list[dict]) -> dict:
+    """The stated rule: lowest best evaluation error (to 0.01 cm), ties to the lower seed."""
+    return min(runs, key=lambda s: (round(s["best"]["mean_error_cm"], 2), s["seed"]))
+
+
+def report(args: Args) -> None:
+    from panda_lead.metrics import bootstrap_ci, diff_text
+
+    runs = load_study(args.study)
+    base = json.loads((RUNS_DIR / "baselines.json").read_text())[args.against]
+    chosen = choose_run(runs)
+    print(f"Study `{args.study}`: {len(runs)} training seeds, each its best evaluation-set model "
+          f"on test seeds {TEST} (n=1000), 5 s episodes; differences are run - {args.against}, "
+          "paired by trajectory, 95% bootstrap CIs; failed episodes charged. From "
+          f"results/runs/{args.study}/ (`uv run studies/runs.py report --study {args.study}`).\n")
+    print(f"| seed | steps | best eval (cm) | test mean (cm) | settled (cm) | mean diff vs "
+          f"{args.against} | median diff | settled diff | better on |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    means, settled = [], []
+    for s in runs:
+        mine, theirs = (np.array(x["mean_err"]) for x in (s["test"], base))
+        d = mine - theirs
+        ds = np.array(s["test"]["settled_err"]) - np.array(base["settled_err"])
+        means.append(mine.mean())
+        settled.append(np.mean(s["test"]["settled_err"]))
+        mark = " (chosen)" if s is chosen else ""
+        print(f"| {s['seed']}{mark} | {s['timesteps']:,} | {s['best']['mean_error_cm']:.2f} | "
+              f"{mine.mean():.2f} | {settled[-1]:.2f} | "
+              f"{diff_text(d.mean(), bootstrap_ci(d, n_boot=args.bootstrap))} | "
+              f"{diff_text(np.median(d), bootstrap_ci(d, np.median, args.bootstrap))} | "
+              f"{diff_text(ds.mean(), bootstrap_ci(ds, n_boot=args.bootstrap))} | "
+              f"{100 * np.mean(d < 0):.0f}% |")
+    if len(runs) > 1:
+        print(f"\nAcross the {len(runs)} seeds: test mean error {np.mean(means):.2f} ± "
+              f"{np.std(means, ddof=1):.2f} cm (mean ± std; range {min(means):.2f}-"
+              f"{max(means):.2f}), settled {np.mean(settled):.2f} ± {np.std(settled, ddof=1):.2f}.")
+    print(f"Chosen by the rule (lowest best evaluation error, ties to the lower seed): seed "
+          f"{chosen['seed']} (best model sha256 {chosen['best_model_sha256'][:12]}).")
+
+
+def choose(args: Args) -> None:
+    runs = load_study(args.study)
+    chosen = choose_run(runs)
+    print(f"{args.study}: seed {chosen['seed']} (run {chosen['run']}, best evaluation error "
+          f"{chosen['best']['mean_error_cm']:.3f} cm at {chosen['best']['timesteps']:,} steps)")
+    if args.archive_as:
+        from panda_lead.training.archive import archive_model
+
+        if len(args.runs) != 1:
+            raise UserError("--archive-as needs --runs FOLDER, the folder holding the run folders")
+        run_dir = Path(args.runs[0]) / chosen["run"]
+        if not run_dir.is_dir():
+            raise UserError(f"{run_dir} is not here: archive on the machine that trained it")
+        path = archive_model(run_dir, args.archive_as, force=args.force)
+        print(f"archived {path}")
+
+
+@exit_on_user_error
+def main(args: Args) -> None:
+    {"summarize": summarize, "baselines": baselines, "report": report,
+     "choose": choose}[args.command](args)
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args, description=__doc__))
