@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import math
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -131,12 +132,36 @@ class IKConfig:
 
 
 _STAGE_NONE = mujoco.mjtStage.mjSTAGE_NONE
+# The cross-product matrix [r]x, flattened: entries (0,1) (0,2) (1,2) (1,0) (2,0) (2,1) hold
+# -r2, r1, -r0, r2, -r1, r0.
+_SKEW_AT = np.array([1, 2, 5, 3, 6, 7])
+_SKEW_OF = np.array([2, 1, 0, 2, 1, 0])
+_SKEW_SIGN = np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
 # Sensor layout (assets/scene.xml): self_contact (found, mindist), floor_contact (found).
 _SELF_FOUND, _SELF_DIST, _FLOOR_FOUND = 0, 1, 2
 _UNSTABLE_WARNINGS = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
                                        mujoco.mjtWarning.mjWARN_BADQVEL,
                                        mujoco.mjtWarning.mjWARN_BADQACC,
                                        mujoco.mjtWarning.mjWARN_BADCTRL)]
+
+
+try:  # the gufunc np.linalg.solve calls, which solves each matrix of a stack with LAPACK
+    from numpy.linalg._umath_linalg import solve as _solve_gufunc
+except ImportError:  # (a private name: should numpy move it, the public function does)
+    _solve_gufunc = None
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.linalg.solve(a, b) for float64 stacks, the same numbers, without its Python-level
+    checks: for one arm they cost more than the solve (about half the IK's numpy overhead).
+    A singular or non-finite system goes through np.linalg.solve itself, which raises
+    LinAlgError for a singular one as ik() does (after a RuntimeWarning from the first try)."""
+    if _solve_gufunc is None:
+        return np.linalg.solve(a, b)
+    x = _solve_gufunc(a, b, signature="dd->d")
+    if not math.isfinite(np.add.reduce(x, axis=None)):
+        return np.linalg.solve(a, b)
+    return x
 
 
 class ArmBatch:
@@ -158,7 +183,6 @@ class ArmBatch:
         self.ik_config = ik
         self.substeps = int(substeps)
         self.dt = control_dt(self.substeps)
-        self.batch = b = mujoco.batch.Batch(m, nsim=n, nthread=nthread, persistent=True)
         self._home_key = m.key("home").id
         self._tip = m.site("tip").id
         self._tip_body = int(m.site_bodyid[self._tip])
@@ -167,12 +191,39 @@ class ArmBatch:
         self._home = home_qpos()
         self._damp3 = np.eye(3) * ik.damping**2
         self._eps3 = np.eye(3) * 1e-10
-        # Live (N, ...) views into the batch (bound once; the batch never moves them).
-        self.qpos = b.bind("qpos")[:, :N_JOINTS]
-        self.qvel = b.bind("qvel")[:, :N_JOINTS]
-        self._ctrl = b.bind("ctrl")
-        self._mocap = b.bind("mocap_pos")[:, m.body("target").mocapid[0]]
-        self.tip_pos = b.bind("site_xpos")[:, self._tip]
+        self._regularisers = np.stack([self._damp3, self._eps3])  # (2, 3, 3), see ik()
+        self._lo_list, self._hi_list = self._lo.tolist(), self._hi.tolist()  # for _ik_one
+        self._home_list = self._home.tolist()
+        self._rhs = np.zeros((n, 2, 3, 1))
+        self._rhs_err = self._rhs[:, 0, :, 0]
+        mocap = m.body("target").mocapid[0]
+        # One arm (the single env) runs on a plain MjData stepped by mj_step: Batch documents
+        # itself bit-identical to exactly that loop, and its per-call costs (argument checks,
+        # handing the call to its thread pool, copying the bound fields out) were the largest
+        # part of a single env's step (a one-arm Batch.jac: ~25 us, mj_jac itself: ~3 us).
+        # The collision-aware IK reads the batch's bound kinematics, so it keeps the batch.
+        if n == 1 and ik.clearance == 0:
+            self.batch = None
+            self._data = d = mujoco.MjData(m)
+            # (1, ...) views of the MjData: the same shapes as a batch's, always current.
+            self.qpos = d.qpos[None, :N_JOINTS]
+            self.qvel = d.qvel[None, :N_JOINTS]
+            self._ctrl = d.ctrl[None]
+            self._mocap = d.mocap_pos[None, mocap]
+            self.tip_pos = d.site_xpos[None, self._tip]
+            self._warning_number = d.warning.number  # live view of the warning counters
+            self._jacp = np.zeros((1, 3, m.nv))
+            self._jacr = np.zeros((1, 3, m.nv))
+            self._jacp_row, self._jacr_row = self._jacp[0], self._jacr[0]
+        else:
+            self._data = None
+            self.batch = b = mujoco.batch.Batch(m, nsim=n, nthread=nthread, persistent=True)
+            # Live (N, ...) views into the batch (bound once; the batch never moves them).
+            self.qpos = b.bind("qpos")[:, :N_JOINTS]
+            self.qvel = b.bind("qvel")[:, :N_JOINTS]
+            self._ctrl = b.bind("ctrl")
+            self._mocap = b.bind("mocap_pos")[:, mocap]
+            self.tip_pos = b.bind("site_xpos")[:, self._tip]
         self._contacts = {"sensordata": np.zeros((n, self.substeps, m.nsensordata))}
         self._arange = np.arange(n)
         self.step_count = np.zeros(n, dtype=np.int64)
@@ -183,9 +234,14 @@ class ArmBatch:
         self.q_goal = np.tile(self._home, (n, 1))
         # Collision-aware IK binds more kinematics (copied out after every batch call), so
         # only when it is on.
-        self._clearance = (Clearance(m, b, N_JOINTS, ik.clearance) if ik.clearance > 0
+        self._clearance = (Clearance(m, self.batch, N_JOINTS, ik.clearance) if ik.clearance > 0
                            else None)
         self._skew = np.zeros((n, 3, 3))  # cross-product matrices, rewritten every step
+        # The tip's Jacobian at the current state, rewritten in place, and its arm columns
+        # (and their transpose) as views made once.
+        self._jac = np.zeros((n, 3, m.nv))
+        self._jac_arm = self._jac[:, :, :N_JOINTS]
+        self._jac_arm_t = self._jac_arm.transpose(0, 2, 1)
         self._old_tip = np.zeros((n, 3))
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
@@ -197,8 +253,10 @@ class ArmBatch:
         """Restore every piece of state of arms ``ids`` (default all): arm, actuator goals, IK
         warm start, target path and marker, clock, flags. ``trajs``: one trajectory per id."""
         ids = self._arange if ids is None else np.asarray(ids, dtype=np.int64).reshape(-1)
-        b = self.batch
-        b.reset(ids, keyframe=self._home_key, stage=mujoco.mjtStage.mjSTAGE_NONE)
+        if self.batch is None:
+            mujoco.mj_resetDataKeyframe(self.model, self._data, self._home_key)
+        else:
+            self.batch.reset(ids, keyframe=self._home_key, stage=mujoco.mjtStage.mjSTAGE_NONE)
         q0 = self._home if qpos is None else np.asarray(qpos, dtype=float)
         self.qpos[ids] = q0
         self._ctrl[ids, :N_JOINTS] = q0
@@ -209,8 +267,11 @@ class ArmBatch:
         if trajs is not None:
             self._set_paths(ids, trajs, n_steps)
             self._mocap[ids] = self.target_pos[ids, 0]
-        b.forward(ids)
-        self._warnings = b.warning[:, _UNSTABLE_WARNINGS, 1].copy()
+        if self.batch is None:
+            mujoco.mj_forward(self.model, self._data)
+        else:
+            self.batch.forward(ids)
+        self._warnings = self._unstable_warnings()
         self._tip_jac(ids)
 
     def _set_paths(self, ids: np.ndarray, trajs, n_steps: int) -> None:
@@ -249,7 +310,11 @@ class ArmBatch:
         return self.step_count * self.dt
 
     def target(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(pos, vel, acc) of every arm's target now, (N, 3) each."""
+        """(pos, vel, acc) of every arm's target now, (N, 3) each (copies)."""
+        if self.n == 1:  # plain indexing (a copy): cheaper than index arrays for one arm
+            k = min(int(self.step_count[0]), self.target_pos.shape[1] - 1)
+            return (self.target_pos[:, k].copy(), self.target_vel[:, k].copy(),
+                    self.target_acc[:, k].copy())
         i, k = self._arange, self._path_index()
         return self.target_pos[i, k], self.target_vel[i, k], self.target_acc[i, k]
 
@@ -258,6 +323,12 @@ class ArmBatch:
         vector env steps a finished arm once before resetting it)."""
         return np.minimum(self.step_count, self.target_pos.shape[1] - 1)
 
+    def _target_pos_now(self) -> np.ndarray:
+        """Each arm's target position now, (N, 3): target()[0] without the rest."""
+        if self.n == 1:
+            return self.target_pos[:, min(int(self.step_count[0]), self.target_pos.shape[1] - 1)]
+        return self.target_pos[self._arange, self._path_index()]
+
     # --- control ---------------------------------------------------------------------------
     def ik(self, target: np.ndarray, q0: np.ndarray | None = None, iters: int | None = None
            ) -> np.ndarray:
@@ -265,37 +336,95 @@ class ArmBatch:
         q0 (default: the measured angles, whose kinematics are current)."""
         cfg = self.ik_config
         iters = cfg.iters if iters is None else iters
+        if self.batch is None:
+            return self._ik_one(target, q0, iters)
         q = (self.qpos if q0 is None else np.broadcast_to(q0, (self.n, N_JOINTS))).copy()
         for i in range(iters):
             if i == 0 and q0 is None:
-                jac, tip = self._jac, self.tip_pos
+                jac, jac_t, tip = self._jac_arm, self._jac_arm_t, self.tip_pos
             else:
                 jac, tip = self._kinematics_at(q)
-            jac = jac[:, :, :N_JOINTS]
-            jac_t = jac.transpose(0, 2, 1)
-            err = target - tip
+                jac = jac[:, :, :N_JOINTS]
+                jac_t = jac.transpose(0, 2, 1)
             # Damped step J^T (J J^T + l^2 I)^-1 e, and the posture pull projected by the exact
             # null-space projector I - J^T (J J^T)^-1 J (a damped projector would leak the pull
             # into the tip position and bias the solution by centimetres near singularities).
+            # The two 3x3 systems are independent, so one stacked solve does both (LAPACK
+            # solves each matrix of a stack on its own: the same numbers as two calls, for
+            # half the numpy overhead, which is most of the cost for a few arms).
             jjt = jac @ jac_t
-            dq = (jac_t @ np.linalg.solve(jjt + self._damp3, err[:, :, None]))[:, :, 0]
+            rhs = self._rhs  # (N, 2, 3, 1): the tip error e, and J times the posture pull
+            np.subtract(target, tip, out=self._rhs_err)
             if cfg.nullspace_gain:
                 pull = cfg.nullspace_gain * (self._home - q)
-                inner = np.linalg.solve(jjt + self._eps3, (jac @ pull[:, :, None]))
-                dq += pull - (jac_t @ inner)[:, :, 0]
+                rhs[:, 1] = jac @ pull[:, :, None]
+                steps = jac_t[:, None] @ np.linalg.solve(jjt[:, None] + self._regularisers, rhs)
+                dq = steps[:, 0, :, 0]
+                dq += pull - steps[:, 1, :, 0]
+            else:
+                dq = (jac_t @ np.linalg.solve(jjt + self._damp3, rhs[:, 0]))[:, :, 0]
             if self._clearance is not None:
                 dq = self._clearance.project(dq)
-            peak = np.abs(dq).max(axis=1, keepdims=True)
-            dq *= np.minimum(1.0, cfg.max_step / np.maximum(peak, 1e-300))
+            # Cap the step at max_step (infinity norm). Under the cap the factor is exactly 1,
+            # so the multiplication is skipped then (the usual case; same numbers).
+            peak = np.maximum.reduce(np.abs(dq), axis=1, keepdims=True)
+            if not np.logical_and.reduce(peak <= cfg.max_step, axis=None):
+                dq *= np.minimum(1.0, cfg.max_step / np.maximum(peak, 1e-300))
             q += dq
-            np.clip(q, self._lo, self._hi, out=q)
+            np.minimum(np.maximum(q, self._lo, out=q), self._hi, out=q)  # np.clip, cheaper
         return q
+
+    def _ik_one(self, target: np.ndarray, q0: np.ndarray | None, iters: int) -> np.ndarray:
+        """ik() for one arm, the same numbers: the elementwise arithmetic on Python floats
+        (numpy's elementwise operations round exactly as Python's do, and the operands and
+        their order are ik()'s), the linear algebra through the numpy routines ik() calls, on
+        matrices of the same shapes and layouts (a stack's matrices are each computed on their
+        own, so dropping ik()'s leading axis of one arm changes no number). For one arm each
+        numpy call costs more than the arithmetic in it."""
+        cfg = self.ik_config
+        gain, cap = cfg.nullspace_gain, cfg.max_step
+        q = (self.qpos[0] if q0 is None else np.broadcast_to(q0, (1, N_JOINTS))[0]).tolist()
+        rhs = self._rhs[0]  # (2, 3, 1): the tip error e, and J times the posture pull
+        for i in range(iters):
+            if i == 0 and q0 is None:
+                jac, jac_t, tip = self._jac_arm, self._jac_arm_t, self.tip_pos
+            else:
+                jac, tip = self._kinematics_at(np.array([q]))
+                jac = jac[:, :, :N_JOINTS]
+                jac_t = jac.transpose(0, 2, 1)
+            jjt = jac @ jac_t
+            np.subtract(target, tip, out=self._rhs_err)
+            if gain:
+                pull = [gain * (h - x) for h, x in zip(self._home_list, q, strict=True)]
+                rhs[1] = (jac @ np.array([pull])[:, :, None])[0]
+                a, b = (jac_t @ _solve(jjt + self._regularisers, rhs)).tolist()
+                dq = [x + (p - y) for (x,), p, (y,) in zip(a, pull, b, strict=True)]
+            else:
+                a = (jac_t @ _solve(jjt + self._damp3, rhs[:1])).tolist()[0]
+                dq = [x for (x,) in a]
+            if not all(abs(x) <= cap for x in dq):  # over the cap (or NaN): ik()'s own calls
+                d = np.array([dq])
+                d *= np.minimum(1.0, cap / np.maximum(np.maximum.reduce(np.abs(d), axis=1,
+                                                                        keepdims=True), 1e-300))
+                dq = d[0].tolist()
+            # np.clip(q + dq, lo, hi) with numpy's NaN handling (max and min keep a NaN first).
+            q = [min(max(x + d, lo), hi)
+                 for x, d, lo, hi in zip(q, dq, self._lo_list, self._hi_list, strict=True)]
+        return np.array([q])
 
     def _kinematics_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tip Jacobians and positions at joint angles q, from a scratch batch (state untouched)."""
+        if self.batch is None:  # one arm: a scratch MjData, the same kinematics and mj_jac
+            if self._scratch is None:
+                self._scratch = mujoco.MjData(self.model)
+            d = self._scratch
+            d.qpos[:N_JOINTS] = q[0]
+            mujoco.mj_kinematics(self.model, d)
+            tip = d.site_xpos[None, self._tip].copy()
+            return self._jacobians(d, tip)[0].copy(), tip
         if self._scratch is None:
-            self._scratch = mujoco.batch.Batch(self.model, nsim=self.n, nthread=self.batch.nthread,
-                                               persistent=True)
+            self._scratch = mujoco.batch.Batch(self.model, nsim=self.n,
+                                               nthread=self.batch.nthread, persistent=True)
             self._scratch_qpos = self._scratch.bind("qpos")
             self._scratch_tip = self._scratch.bind("site_xpos")[:, self._tip]
         self._scratch_qpos[:, :N_JOINTS] = q
@@ -303,10 +432,21 @@ class ArmBatch:
         jac, _ = self._scratch.jac(self._tip_body, self._scratch_tip)
         return jac, self._scratch_tip.copy()
 
+    def _jacobians(self, d: mujoco.MjData, point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One arm's (1, 3, nv) tip-body Jacobians at a world point, as Batch.jac computes them:
+        mj_kinematics and mj_comPos from the state, then mj_jac (into reused buffers)."""
+        m = self.model
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_jac(m, d, self._jacp_row, self._jacr_row, point[0], self._tip_body)
+        return self._jacp, self._jacr
+
     def _tip_jac(self, ids: np.ndarray | None = None) -> None:
         """The tip's position Jacobian at each arm's current state, (N, 3, nv), for the next IK."""
-        if ids is None or len(ids) == self.n:
-            self._jac = self.batch.jac(self._tip_body, self.tip_pos)[0]
+        if self.batch is None:
+            self._jac[:] = self._jacobians(self._data, self.tip_pos)[0]
+        elif ids is None or len(ids) == self.n:
+            self._jac[:] = self.batch.jac(self._tip_body, self.tip_pos)[0]
         else:
             self._jac[ids] = self.batch.jac(self._tip_body, self.tip_pos[ids], ids=ids)[0]
 
@@ -317,14 +457,19 @@ class ArmBatch:
         tip position, then the Jacobian moved from the old point a to the new tip b."""
         old_tip = self._old_tip
         np.copyto(old_tip, self.tip_pos)
-        jacp, jacr = self.batch.jac(self._tip_body, old_tip)
-        self.batch.forward(stage=_STAGE_NONE)
-        # The velocity of point b on the tip body is v_a + w x (b - a): J_b = J_a - [b - a]x J_r.
-        r = self.tip_pos - old_tip
-        skew = self._skew
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
-        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = r[:, 2], -r[:, 1], r[:, 0]
-        self._jac = jacp - skew @ jacr
+        # The velocity of point b on the tip body is v_a + w x (b - a): J_b = J_a - [b - a]x J_r,
+        # [r]x = [[0, -r2, r1], [r2, 0, -r0], [-r1, r0, 0]].
+        if self.batch is None:  # the MjData's tip_pos view is current at once
+            jacp, jacr = self._jacobians(self._data, old_tip)
+            r0, r1, r2 = (b - a for a, b in zip(old_tip[0].tolist(), self.tip_pos[0].tolist(),
+                                                 strict=True))
+            self._skew[0] = ((0.0, -r2, r1), (r2, 0.0, -r0), (-r1, r0, 0.0))
+        else:
+            jacp, jacr = self.batch.jac(self._tip_body, old_tip)
+            self.batch.forward(stage=_STAGE_NONE)
+            r = self.tip_pos - old_tip  # written in one indexed assignment:
+            self._skew.reshape(self.n, 9)[:, _SKEW_AT] = r[:, _SKEW_OF] * _SKEW_SIGN
+        np.subtract(jacp, self._skew @ jacr, out=self._jac)
 
     def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None,
              joint_goal: np.ndarray | None = None) -> None:
@@ -336,39 +481,89 @@ class ArmBatch:
         if self.target_pos is None:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
-        b = self.batch
         if joint_goal is not None:
             self.q_goal = np.clip(joint_goal, self._lo, self._hi)
         elif self.ik_config.substep_ik:
             sensors = self._substep_ik_step(lead, joint_offset)
         else:
-            target = self.target()[0]
+            target = self._target_pos_now()
             self.q_goal = self.ik(target if lead is None else target + lead)
             if joint_offset is not None:
                 self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
         if joint_goal is not None or not self.ik_config.substep_ik:
             self._ctrl[:, :N_JOINTS] = self.q_goal
-            sensors = b.rollout(self.substeps, record=("sensordata",),
-                                out=self._contacts)["sensordata"]
+            sensors = self._physics(self._contacts["sensordata"])
             self._end_of_step_kinematics()
         self.step_count += 1
-        self._mocap[:] = self.target_pos[self._arange, self._path_index()]
-        # Contact sensors, recorded after every substep: any touch in the step counts.
-        found = sensors[:, :, _SELF_FOUND] > 0
-        self.self_collision = found.any(axis=1)
-        self.collision_depth = np.where(found, -sensors[:, :, _SELF_DIST], 0.0).max(axis=1)
-        self.floor_contact = (sensors[:, :, _FLOOR_FOUND] > 0).any(axis=1)
-        # MuJoCo resets a simulation itself on a NaN/huge position, velocity, acceleration or
-        # control (and only warns); a rise in those warning counters marks the arm unstable.
-        warnings = b.warning[:, _UNSTABLE_WARNINGS, 1]
-        self.unstable = (warnings != self._warnings).any(axis=1) | ~np.isfinite(self.qpos).all(1)
-        self._warnings = warnings.copy()
+        self._mocap[:] = self._target_pos_now()
+        self._flags(sensors)
+
+    def _flags(self, sensors: np.ndarray) -> None:
+        """The step's flags from the contact sensors recorded after every substep (any touch
+        in the step counts) and from MuJoCo's warning counters: MuJoCo resets a simulation
+        itself on a NaN/huge position, velocity, acceleration or control (and only warns), so
+        a rise in those counters marks the arm unstable."""
+        warnings = self._unstable_warnings()
+        if self.batch is None:  # one arm: the same flags from Python values (see _ik_one)
+            rows = sensors[0].tolist()
+            touched = any(r[_SELF_FOUND] > 0 for r in rows)
+            unstable = (warnings != self._warnings
+                        or not all(map(math.isfinite, self.qpos[0].tolist())))
+            flags = np.array([touched, any(r[_FLOOR_FOUND] > 0 for r in rows), unstable])
+            self.self_collision, self.floor_contact, self.unstable = flags[0:1], flags[1:2], \
+                flags[2:3]
+            # Without a touch every substep's depth is 0.0, and so is the maximum.
+            self.collision_depth = np.zeros(1) if not touched else np.maximum.reduce(
+                np.where(sensors[:, :, _SELF_FOUND] > 0, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
+        else:  # (a ufunc's reduce is what .any() and .max() call, without their wrappers)
+            found = sensors[:, :, _SELF_FOUND] > 0
+            self.self_collision = np.logical_or.reduce(found, axis=1)
+            self.collision_depth = np.maximum.reduce(
+                np.where(found, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
+            self.floor_contact = np.logical_or.reduce(sensors[:, :, _FLOOR_FOUND] > 0, axis=1)
+            self.unstable = (np.logical_or.reduce(warnings != self._warnings, axis=1)
+                             | ~np.logical_and.reduce(np.isfinite(self.qpos), axis=1))
+        self._warnings = warnings
+
+    def _physics(self, out: np.ndarray) -> np.ndarray:
+        """Every arm's physics substeps, (N, nstep, nsensordata) ``out`` recording the sensors
+        after each; returns out."""
+        if self.batch is not None:
+            return self.batch.rollout(out.shape[1], record=("sensordata",),
+                                      out={"sensordata": out})["sensordata"]
+        m, d, nstep = self.model, self._data, out.shape[1]
+        counters = self._warning_number
+        start, rows = counters.tolist(), []
+        for j in range(nstep):
+            mujoco.mj_step(m, d)
+            rows.append(d.sensordata.tolist())
+            # As Batch.rollout: an arm whose warning counters rise stops stepping, and its
+            # remaining records repeat its last ones.
+            if counters.tolist() != start:
+                rows += rows[-1:] * (nstep - 1 - j)
+                break
+        out[0] = rows
+        return out
+
+    def _unstable_warnings(self) -> np.ndarray | list[int]:
+        """(N, 4) counters of MuJoCo's bad qpos, qvel, qacc and ctrl warnings (a copy); for one
+        arm a list of the four."""
+        if self.batch is None:
+            counts = self._warning_number.tolist()
+            return [counts[w] for w in _UNSTABLE_WARNINGS]
+        return self.batch.warning[:, _UNSTABLE_WARNINGS, 1]
+
+    def warning_counts(self) -> np.ndarray:
+        """(N, mjNWARNING) counters of every MuJoCo warning of each arm (a copy)."""
+        if self.batch is None:
+            return self._warning_number[None].copy()
+        return self.batch.warning[:, :, 1].copy()
 
     def _substep_ik_step(self, lead, joint_offset) -> np.ndarray:
         """The substeps of one control step, each after an IK on the target at its start time
         (the fine path); returns the contact sensors recorded after each substep."""
-        b, sensors = self.batch, self._contacts["sensordata"]
-        one = {"sensordata": np.zeros((self.n, 1, sensors.shape[2]))}
+        sensors = self._contacts["sensordata"]
+        one = np.zeros((self.n, 1, sensors.shape[2]))
         fine = self._fine_pos
         base = np.minimum(self.step_count * self.substeps, fine.shape[1] - 1)
         for j in range(self.substeps):
@@ -377,14 +572,21 @@ class ArmBatch:
             if joint_offset is not None:
                 self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
             self._ctrl[:, :N_JOINTS] = self.q_goal
-            sensors[:, j] = b.rollout(1, record=("sensordata",), out=one)["sensordata"][:, 0]
+            sensors[:, j] = self._physics(one)[:, 0]
             self._end_of_step_kinematics()
         return sensors
 
     # --- inspection --------------------------------------------------------------------------
     def get_data(self, i: int = 0, data: mujoco.MjData | None = None) -> mujoco.MjData:
-        """Arm i's whole MjData (for rendering, the viewer and inspection)."""
-        return self.batch.get_data(i, data)
+        """Arm i's whole MjData (for rendering, the viewer and inspection): a copy."""
+        if self.batch is not None:
+            return self.batch.get_data(i, data)
+        if not 0 <= i < self.n:
+            raise IndexError(f"arm {i} of {self.n}")
+        if data is None:
+            data = mujoco.MjData(self.model)
+        mujoco.mj_copyData(data, self.model, self._data)
+        return data
 
     def contact_pairs(self, i: int = 0) -> list[tuple[str, str, float]]:
         """Which arm bodies of arm i touch each other now, and how deep (m). For tests."""

@@ -15,7 +15,7 @@ from gymnasium import spaces
 
 from .config import EnvConfig, arguments_table, as_config
 from .errors import UserError
-from .task import LeadTask, failure_of
+from .task import LeadTask
 
 
 class PandaLeadEnv(gym.Env):
@@ -94,6 +94,14 @@ class PandaLeadEnv(gym.Env):
 
     def __init__(self, config: EnvConfig | dict | None = None, render_mode: str | None = None,
                  width: int = 640, height: int = 480, **settings):
+        for name in VECTOR_SETTINGS:
+            if name in settings:
+                raise UserError(f"{name} is a setting of the vector env, not of a single env; "
+                                f"with make_vec(..., vectorization_mode='sync') pass "
+                                f"vector_kwargs={{{name!r}: ...}}"
+                                if name == "autoreset_mode" else
+                                f"{name} is a setting of the native vector env "
+                                f"(make_vec's default vectorization), not of a single env")
         self.cfg = as_config(config, settings)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UserError(f"render_mode must be one of {self.metadata['render_modes']}, "
@@ -106,7 +114,7 @@ class PandaLeadEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (self.task.action_dim,), dtype=np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.task.obs_dim,), np.float32)
         self.render_mode, self._width, self._height = render_mode, width, height
-        self._renderer = self._viewer = self._render_data = None
+        self._frames = self._viewer = self._render_data = None
         self.trail: list[np.ndarray] = []
 
     def set_stream(self, stream: np.random.SeedSequence) -> None:
@@ -150,44 +158,64 @@ class PandaLeadEnv(gym.Env):
         return obs[0], {"traj_seed": int(self.task.traj_seeds[0]), "shape": self.task.shapes[0]}
 
     def step(self, action):
-        obs, reward, terminated, truncated, info = self.task.step(action)
-        term, trunc = bool(terminated[0]), bool(truncated[0])
-        out = {"distance": float(info["distance"][0]),
-               "reward_terms": {k: float(v[0]) for k, v in info["reward_terms"].items()},
-               "self_collision": bool(info["self_collision"][0]),
-               "collision_depth": float(info["collision_depth"][0]),
-               "reachable": bool(info["reachable"][0]), "lead": info["lead"][0].copy()}
-        failure = failure_of(info, 0, term)
-        if failure:
-            out["failure"] = failure
-            out["message"] = (f"{failure} at t={self.core.time[0]:.2f}s "
-                              f"(trajectory seed {self.task.traj_seeds[0]})")
+        # The task's one-slot step gives the info this env reports, as Python scalars.
+        obs, reward, terminated, truncated, info = self.task.step_one(action)
+        if terminated:
+            info["message"] = failure_message(info["failure"], self.core.time[0],
+                                              self.task.traj_seeds[0])
         if self.render_mode is not None:
-            self.trail.append(self.core.target()[0][0].copy())
+            self.trail.append(self.core.target()[0][0])
         if self.render_mode == "human":
             self.render()
-        return obs[0], float(reward[0]), term, trunc, out
+        return obs, reward, terminated, truncated, info
 
     # --- rendering -------------------------------------------------------------------------
     def render(self):
-        import mujoco
-
-        self._render_data = self.core.get_data(0, self._render_data)
         if self.render_mode == "human":
             import mujoco.viewer
 
+            self._render_data = self.core.get_data(0, self._render_data)
             if self._viewer is None:
                 self._viewer = mujoco.viewer.launch_passive(self.core.model, self._render_data)
             self._viewer.sync()
             return None
         if self.render_mode != "rgb_array":
             return None
-        if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.core.model, self._height, self._width)
+        if self._frames is None:
+            self._frames = ArmFrames(self.core.model, self._width, self._height)
+        return self._frames.render(self.core, 0, self.trail)
+
+    def close(self):
+        if self._frames is not None:
+            self._frames.close()
+            self._frames = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+
+class ArmFrames:
+    """rgb_array frames of the arms of a core, from the ``workspace`` camera, with a short
+    trail behind the target marker: the one rendering code of the single env and the vector
+    env (which renders each of its arms through one of these)."""
+
+    TRAIL = 40  # target positions drawn behind the marker (0.4 s at 100 Hz)
+
+    def __init__(self, model, width: int = 640, height: int = 480):
+        import mujoco
+
+        self._renderer = mujoco.Renderer(model, height, width)
+        self._data = None
+
+    def render(self, core, i: int, trail: list[np.ndarray]) -> np.ndarray:
+        """Arm i's frame, (height, width, 3) uint8; ``trail``: its target's past positions."""
+        import mujoco
+
+        self._data = core.get_data(i, self._data)
         r = self._renderer
-        r.update_scene(self._render_data, camera="workspace")
+        r.update_scene(self._data, camera="workspace")
         scene = r.scene
-        for p in self.trail[-40:]:  # a short trail behind the target marker
+        for p in trail[-self.TRAIL:]:
             if scene.ngeom >= scene.maxgeom:
                 break
             mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
@@ -196,13 +224,18 @@ class PandaLeadEnv(gym.Env):
             scene.ngeom += 1
         return r.render()
 
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        if self._viewer is not None:
-            self._viewer.close()
-            self._viewer = None
+    def close(self) -> None:
+        self._renderer.close()
+
+
+def failure_message(failure: str, t: float, traj_seed: int) -> str:
+    """info["message"] of a terminating failure (the single env's and the vector env's)."""
+    return f"{failure} at t={t:.2f}s (trajectory seed {traj_seed})"
+
+
+# Settings of the vector env that a single env does not take (make_vec passes its keyword
+# arguments to every single env with vectorization_mode="sync").
+VECTOR_SETTINGS = ("autoreset_mode", "num_threads")
 
 
 PandaLeadEnv.__doc__ += textwrap.indent(arguments_table(), "    ") + "\n"

@@ -7,13 +7,15 @@ seeds.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import trajectory
 from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, action_dim, obs_layout
 from .core import ArmBatch
-from .trajectory import reachable
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
+from .trajectory import reachable
 
 
 class LeadTask:
@@ -37,7 +39,11 @@ class LeadTask:
             self._noise_std[a:b] = c.obs_noise.get(f, 0.0)
             self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
         self._noisy = np.flatnonzero(self._noise_std)
+        self._inv_scale_list = self._inv_scale.tolist()
+        self._features = [f for f, _, _ in self.layout]  # for step_one
+        self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
+        self._alive = np.full(n, self._w["alive"])
         self.rngs = [np.random.default_rng() for _ in range(n)]
         self.action_dim = action_dim(c.action)
         self.prev_action = np.zeros((n, self.action_dim))
@@ -137,16 +143,142 @@ class LeadTask:
                 raw[i, self._noisy] += self.rngs[i].normal(0.0, std)
         return (raw * self._inv_scale).astype(np.float32)
 
-    def step(self, actions: np.ndarray):
+    def step(self, actions: np.ndarray, discard=None):
         """One control step of every slot -> (obs, reward, terminated, truncated, info), where
         info holds (N, ...) arrays: distance, reward_terms, self_collision, collision_depth,
-        reachable, lead, unstable."""
-        action = np.array(actions, dtype=np.float64).reshape(self.n, self.action_dim)
-        if not np.isfinite(action).all():
-            bad = np.flatnonzero(~np.isfinite(action).all(axis=1))
+        reachable, lead, unstable. ``discard``: slots whose step the caller throws away (a
+        vector env's next-step autoreset resets them at once): their generators do not
+        advance, so their next episodes are those they would have had without this step."""
+        action = self._checked(np.array(actions, dtype=np.float64).reshape(self.n,
+                                                                           self.action_dim))
+        core = self.core
+        self._control(action)
+        ee = core.tip_pos
+        np.subtract(ee, self._prev_ee, out=self.ee_vel)
+        self.ee_vel /= self.dt
+        self._prev_ee[:] = ee
+        now = core.target()  # (pos, vel, acc) after the step: the distance and the observation
+        dist = _distance(ee - now[0])
+        unstable = core.unstable
+        any_unstable = np.logical_or.reduce(unstable)
+        terminated = (unstable | core.self_collision if self.config.terminate_on_collision
+                      else unstable.copy())
+        truncated = ~terminated & (core.step_count >= self.config.episode_steps)
+        w, da = self._w, action - self.prev_action
+        counts = core.time >= self.config.reward_after_s - 1e-9  # settled-only reward, if set
+        terms = {
+            "distance": np.where(counts, -w["distance"] * dist, 0.0),
+            "tracking": np.where(counts, w["tracking"] * np.exp(-dist / self.config.tracking_scale),
+                                 0.0),
+            "action": -w["action"] * np.einsum("ij,ij->i", action, action),
+            "action_change": -w["action_change"] * np.einsum("ij,ij->i", da, da),
+            "collision": -w["collision"] * core.collision_depth,
+            "alive": self._alive.copy(),
+            "termination": np.where(terminated, -w["termination"], 0.0),
+        }
+        if any_unstable:  # a blown-up arm earns only its termination cost
+            for k in REWARD_TERMS[:-1]:
+                terms[k] = np.where(unstable, 0.0, terms[k])
+        reward = sum(terms.values())
+        self.prev_action = action
+        ids = None if discard is None else np.setdiff1d(self._all, discard)
+        obs = self._observed(self.observe(ids, target=now), unstable if any_unstable else None)
+        k = np.minimum(core.step_count, self.config.episode_steps)
+        info = {"distance": dist, "reward_terms": terms, "self_collision": core.self_collision,
+                "collision_depth": core.collision_depth, "unstable": unstable,
+                "reachable": self._reachable[self._all, k], "lead": self.lead}
+        return obs, reward, terminated, truncated, info
+
+    def step_one(self, action):
+        """step() of a task of one slot (the single env), returning what a Gymnasium env
+        returns: obs (obs_dim,), reward, terminated and truncated as Python scalars, and the
+        info the single env reports (distance, reward_terms, self_collision, collision_depth,
+        reachable, lead, and failure when terminated).
+
+        The same numbers as step(), bit for bit (tests/test_vector.py checks it across the
+        settings): the arithmetic on one slot's numbers is done in Python floats, which round
+        exactly as numpy's elementwise operations do, and everything whose rounding depends on
+        the routine (the IK's linear algebra, the norm's sum, einsum, exp) still goes through
+        the same numpy calls as step(). For one arm a numpy call costs far more than the
+        arithmetic in it, so this is what keeps a single env step near the cost of its physics.
+        """
+        if self.n != 1:
+            raise ValueError(f"step_one is for a task of one slot; this one has {self.n}")
+        c, w, core = self.config, self._w, self.core
+        values = np.ravel(action).tolist()
+        if len(values) != self.action_dim:
+            raise ValueError(f"action must have {self.action_dim} values, got {len(values)}")
+        if not all(map(math.isfinite, values)):
+            raise ValueError(f"action must be finite, got {np.ravel(action)} (trajectory seed "
+                             f"{self.traj_seeds[0]})")
+        values = [min(max(float(x), -1.0), 1.0) for x in values]  # np.clip, exactly
+        action = np.array([values])
+        self._control(action)
+        ee = core.tip_pos[0].tolist()
+        dt = self.dt
+        ee_vel = [(a - b) / dt for a, b in zip(ee, self._prev_ee[0].tolist(), strict=True)]
+        self.ee_vel[0], self._prev_ee[0] = ee_vel, ee
+        step = int(core.step_count[0])
+        k = min(step, c.episode_steps)  # the core's path index (its paths have one row more)
+        target = core.target_pos[0, k].tolist()
+        dx, dy, dz = (a - b for a, b in zip(ee, target, strict=True))
+        dist = math.sqrt((dx * dx + dy * dy) + dz * dz)  # _distance() on Python floats
+        collision, unstable = bool(core.self_collision[0]), bool(core.unstable[0])
+        depth = float(core.collision_depth[0])
+        terminated = unstable or (collision and c.terminate_on_collision)
+        truncated = not terminated and step >= c.episode_steps
+        counts = step * self.dt >= c.reward_after_s - 1e-9
+        # A zero weight times anything finite is a zero of the weight's sign, so the numpy
+        # calls behind a term whose weight is zero are skipped (the defaults weigh most so).
+        e = np.exp(np.array([-dist / c.tracking_scale]))[0] if w["tracking"] else 1.0
+        sq = np.einsum("ij,ij->i", action, action)[0] if w["action"] else 0.0
+        da = action - self.prev_action if w["action_change"] else None
+        dsq = np.einsum("ij,ij->i", da, da)[0] if w["action_change"] else 0.0
+        terms = {
+            "distance": -w["distance"] * dist if counts else 0.0,
+            "tracking": float(w["tracking"] * e) if counts else 0.0,
+            "action": float(-w["action"] * sq),
+            "action_change": float(-w["action_change"] * dsq),
+            "collision": -w["collision"] * depth,
+            "alive": w["alive"],
+            "termination": -w["termination"] if terminated else 0.0,
+        }
+        if unstable:  # a blown-up arm earns only its termination cost
+            for name in REWARD_TERMS[:-1]:
+                terms[name] = 0.0
+        reward = sum(terms.values())
+        self.prev_action = action
+        source = {"ee_pos": ee, "ee_vel": ee_vel, "target_pos": target,
+                  "target_vel": core.target_vel[0, k].tolist(),
+                  "target_acc": core.target_acc[0, k].tolist(), "prev_action": values}
+        if self._joints_observed:
+            source["joint_pos"], source["joint_vel"] = core.qpos[0].tolist(), core.qvel[0].tolist()
+        raw = [x for f in self._features for x in source[f]]
+        if len(self._noisy):
+            noise = self.rngs[0].normal(0.0, self._noise_std[self._noisy]).tolist()
+            for j, v in zip(self._noisy.tolist(), noise, strict=True):
+                raw[j] += v
+        obs = np.array([[x * s for x, s in zip(raw, self._inv_scale_list, strict=True)]],
+                       dtype=np.float32)
+        obs = self._observed(obs, core.unstable if unstable else None)
+        info = {"distance": dist, "reward_terms": terms, "self_collision": collision,
+                "collision_depth": depth, "reachable": bool(self._reachable[0, k]),
+                "lead": self.lead[0].copy()}
+        if terminated:
+            info["failure"] = "unstable" if unstable else "self_collision"
+        return obs[0], reward, terminated, truncated, info
+
+    def _checked(self, action: np.ndarray) -> np.ndarray:
+        """Finite actions, clipped to [-1, 1] in place; a NaN or infinity is a clear error."""
+        finite = np.isfinite(action)
+        if not np.logical_and.reduce(finite, axis=None):
+            bad = np.flatnonzero(~finite.all(axis=1))
             raise ValueError(f"action must be finite, got {action[bad[0]]} (trajectory seed "
                              f"{self.traj_seeds[bad[0]]})")
-        np.clip(action, -1.0, 1.0, out=action)
+        return np.minimum(np.maximum(action, -1.0, out=action), 1.0, out=action)  # np.clip
+
+    def _control(self, action: np.ndarray) -> None:
+        """Apply the (checked) actions: the action delay, then one control step of the core."""
         core = self.core
         applied = action
         if self._delayed:
@@ -163,44 +295,24 @@ class LeadTask:
             lo, hi = core.joint_limits
             home = core.home
             core.step(joint_goal=home + np.where(applied < 0, home - lo, hi - home) * applied)
-        ee = core.tip_pos
-        np.subtract(ee, self._prev_ee, out=self.ee_vel)
-        self.ee_vel /= self.dt
-        self._prev_ee[:] = ee
-        now = core.target()  # (pos, vel, acc) after the step: the distance and the observation
-        dist = np.linalg.norm(ee - now[0], axis=1)
-        unstable = core.unstable
-        terminated = unstable | (core.self_collision & self.config.terminate_on_collision)
-        truncated = ~terminated & (core.step_count >= self.config.episode_steps)
-        w, da = self._w, action - self.prev_action
-        counts = core.time >= self.config.reward_after_s - 1e-9  # settled-only reward, if set
-        terms = {
-            "distance": np.where(counts, -w["distance"] * dist, 0.0),
-            "tracking": np.where(counts, w["tracking"] * np.exp(-dist / self.config.tracking_scale),
-                                 0.0),
-            "action": -w["action"] * np.einsum("ij,ij->i", action, action),
-            "action_change": -w["action_change"] * np.einsum("ij,ij->i", da, da),
-            "collision": -w["collision"] * core.collision_depth,
-            "alive": np.full(self.n, w["alive"]),
-            "termination": np.where(terminated, -w["termination"], 0.0),
-        }
-        if unstable.any():  # a blown-up arm earns only its termination cost
-            for k in REWARD_TERMS[:-1]:
-                terms[k] = np.where(unstable, 0.0, terms[k])
-        reward = sum(terms.values())
-        self.prev_action = action
-        obs = self.observe(target=now)
+
+    def _observed(self, obs: np.ndarray, unstable: np.ndarray | None) -> np.ndarray:
+        """What the policy sees of this step's (N, base) observations: the observation delay,
+        zeros for blown-up slots (``unstable``; None when there are none), then stacking."""
         if self._delayed:
             self._obs_hist[:, 1:] = self._obs_hist[:, :-1]
             self._obs_hist[:, 0] = obs
             obs = self._obs_hist[self._all, self.obs_delay]
-        obs[unstable] = 0.0  # never hand NaNs to the learner
-        obs = self._stacked(obs)
-        k = np.minimum(core.step_count, self.config.episode_steps)
-        info = {"distance": dist, "reward_terms": terms, "self_collision": core.self_collision,
-                "collision_depth": core.collision_depth, "unstable": unstable,
-                "reachable": self._reachable[self._all, k], "lead": self.lead}
-        return obs, reward, terminated, truncated, info
+        if unstable is not None:
+            obs[unstable] = 0.0  # never hand NaNs to the learner
+        return self._stacked(obs)
+
+
+def _distance(d: np.ndarray) -> np.ndarray:
+    """|d| of each row of an (N, 3) array: np.linalg.norm(d, axis=1), which sums the squares
+    in this order (checked on millions of rows), written out elementwise so that step_one's
+    Python floats give the same numbers by construction."""
+    return np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
 
 
 def failure_of(info: dict, i: int, terminated: bool) -> str | None:

@@ -62,18 +62,24 @@ def soak(args: Args) -> dict:
             stats["errors"].append(traceback.format_exc(limit=3))
             vec.reset()
             continue
-        stats["steps"] += n
+        # Next-step autoreset: an env that ended last step only resets in this one (its row
+        # of this step is its new episode's first observation, not a step). Count the envs
+        # that stepped: those with step info (Gymnasium's "_key" masks).
+        stepped = info.get("_distance", np.zeros(n, dtype=bool))
+        stats["steps"] += int(stepped.sum())
         stats["nans"] += int((~np.isfinite(obs).all(axis=1) | ~np.isfinite(reward)).sum())
-        stats["collision_steps"] += int(info["self_collision"].sum())
-        stats["floor_steps"] += int(task.core.floor_contact.sum())
-        stats["unstable"] += int(info["unstable"].sum())
+        if stepped.any():  # (an all-reset step has no step info at all)
+            stats["collision_steps"] += int(info["self_collision"].sum())  # False elsewhere
+            stats["floor_steps"] += int(task.core.floor_contact[stepped].sum())
+        if "failure" in info:
+            stats["unstable"] += int((info["failure"][info["_failure"]] == "unstable").sum())
         ended = np.flatnonzero(term | trunc)
         for i in ended:
             stats["episodes"] += 1
             stats["shapes"][task.shapes[i]] = stats["shapes"].get(task.shapes[i], 0) + 1
         mode[ended] = rng.integers(3, size=len(ended))
         const[ended] = np.sign(rng.uniform(-1, 1, (len(ended), 3)))
-    stats["warnings"] = int(task.core.batch.warning[:, :, 1].sum())
+    stats["warnings"] = int(task.core.warning_counts().sum())
     return stats
 
 

@@ -112,8 +112,8 @@ def test_sb3_vec_env_matches_gymnasium_vector_env_and_resets_in_step():
     sb3 = LeadVecEnv(config, n, nthread=1)
     sb3.seed(5)
     gv = PandaLeadVecEnv(n, config)
-    obs_a = sb3.reset()
-    obs_b, _ = gv.reset(seed=5)
+    obs_a = sb3.reset()  # SB3's training streams; Gymnasium's env plays the trajectories drawn
+    obs_b, _ = gv.reset(options={"traj_seeds": sb3.task.traj_seeds.tolist()})
     np.testing.assert_array_equal(obs_a, obs_b)
     rng = np.random.default_rng(0)
     for t in range(steps):

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from panda_lead.core import N_JOINTS, ArmBatch, home_qpos, load_model
+from panda_lead.core import N_JOINTS, ArmBatch, IKConfig, home_qpos, load_model
 from panda_lead.trajectory import leaves_reach, reachable, sample
 
 HOME_QPOS = home_qpos()
@@ -183,3 +183,39 @@ def test_home_pose_and_rates_come_from_the_mjcf():
 def test_stepping_before_a_target_path_is_a_clear_error():
     with pytest.raises(RuntimeError, match="reset\\(trajs="):
         ArmBatch(1, nthread=1).step()
+
+
+@pytest.mark.parametrize("ik", [IKConfig(), IKConfig(iters=2), IKConfig(nullspace_gain=0.0),
+                                IKConfig(max_step=0.01)])
+def test_one_arm_core_is_a_row_of_a_batch_bit_for_bit(ik):
+    """ArmBatch(1) (the single env) steps one plain MjData and does the IK's elementwise
+    maths on Python floats; its arm is the same arm as a row of a batch of several, bit for
+    bit: state, Jacobian-driven goals, flags, warnings, including an arm MuJoCo finds unstable
+    (its warning counters stop the remaining substeps, as Batch.rollout does)."""
+    from panda_lead import trajectory
+
+    rng = np.random.default_rng(7)
+    trajs = [trajectory.sample(s) for s in (4, 5, 6)]
+    one, many = ArmBatch(1, ik, nthread=1), ArmBatch(3, ik, nthread=1)
+    one.reset(trajs=trajs[1:2], n_steps=40)
+    many.reset(trajs=trajs, n_steps=40)
+    for t in range(40):
+        lead = rng.uniform(-0.15, 0.15, (3, 3))
+        offset = rng.uniform(-0.1, 0.1, (3, N_JOINTS)) if t % 3 == 0 else None
+        if t == 25:  # blow arm 1 up
+            one.qvel[0, 2] = many.qvel[1, 2] = 1e12
+        one.step(lead[1:2], None if offset is None else offset[1:2])
+        many.step(lead, offset)
+        for a, b in ((one.qpos, many.qpos), (one.qvel, many.qvel), (one.tip_pos, many.tip_pos),
+                     (one.q_goal, many.q_goal), (one.self_collision, many.self_collision),
+                     (one.collision_depth, many.collision_depth),
+                     (one.floor_contact, many.floor_contact), (one.unstable, many.unstable),
+                     (one.warning_counts(), many.warning_counts())):
+            assert np.array_equal(a[0], b[1]), t
+        assert many.unstable[1] == (t == 25)
+    target = many.target()[0]
+    q0 = HOME_QPOS + rng.uniform(-0.5, 0.5, N_JOINTS)
+    assert np.array_equal(one.ik(target[1:2], q0=q0, iters=20)[0],
+                          many.ik(target, q0=q0, iters=20)[1])
+    data = one.get_data(0)
+    assert np.array_equal(data.qpos[:N_JOINTS], one.qpos[0]) and data is not one._data

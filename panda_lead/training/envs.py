@@ -46,10 +46,11 @@ def _single(settings: dict, quiet_signals: bool):
 
 def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str = "batched",
                  n_workers: int = 0):
-    """The training envs, with episode statistics (VecMonitor). batched: one
+    """The training envs, with episode statistics (``info["episode"]``). batched: one
     `mujoco.batch.Batch` of n_envs arms in this process (sb3_vecenv.LeadVecEnv; n_workers =
     MuJoCo threads, 0 = all cores); subproc: SB3's SubprocVecEnv, a process per env (the
-    reference configuration); dummy: a loop of single envs in this process."""
+    reference configuration); dummy: a loop of single envs in this process. LeadVecEnv reports
+    episode statistics itself; SB3's own vec envs get them from a VecMonitor."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
     config = as_config(env_config, {})
@@ -62,4 +63,4 @@ def make_vec_env(env_config: EnvConfig | dict, n_envs: int, seed: int, kind: str
         vec = StreamSeeded(SubprocVecEnv(fns, start_method="forkserver") if kind == "subproc"
                            else DummyVecEnv(fns))
     vec.seed(seed)
-    return VecMonitor(vec)
+    return vec if kind == "batched" else VecMonitor(vec)
