@@ -52,8 +52,12 @@ def action_dim(action: str) -> int:
 
 def check_features(features) -> tuple[str, ...]:
     """Validate a feature selection and put it in the canonical order."""
+    if not isinstance(features, (str, list, tuple)):  # a hand-edited sidecar: 5, null, {...}
+        raise UserError(f"obs_features must be a list of feature names, not {features!r}")
     features = (features,) if isinstance(features, str) else tuple(features)
     for f in features:
+        if not isinstance(f, str):
+            raise UserError(f"obs_features must be a list of feature names, not {f!r} in it")
         if f not in OBS_FEATURES:
             raise UserError(f"unknown observation feature {f!r}" + did_you_mean(f, OBS_FEATURES))
     if not features:

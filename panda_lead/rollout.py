@@ -23,7 +23,9 @@ leaves a half file that a later command would trust.
 
 from __future__ import annotations
 
+import io
 import json
+import math
 import zipfile
 import zlib
 from collections.abc import Iterator
@@ -33,7 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from .atomicio import atomic_write
+from .config import MAX_EPISODE_STEPS
 from .errors import UserError
+from .seeds import MAX_SEED
 from .task import failure_of
 
 ROLLOUT_DIR = Path("rollouts")
@@ -108,32 +112,166 @@ def save(rollout: Rollout, path: Path) -> Path:
 _READ_ERRORS = (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error,
                 UnicodeDecodeError)
 
+# A rollout file may come from elsewhere, so reading one is bounded: every size below is checked
+# before anything is decompressed. Far above any real rollout (the longest episode,
+# MAX_EPISODE_STEPS steps of (T, 7) float64, is a 5.6 MB array), far below what would hurt.
+MAX_ARRAY_BYTES = 2 * MAX_EPISODE_STEPS * 7 * 8 + 4096
+MAX_META_BYTES = 2**20
+MAX_FILE_BYTES = 64 * 2**20
+# Each array's columns per row ((T,) when absent), and whether it is a flag (bool) array.
+COLUMNS = {"ee_pos": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3, "lead": 3,
+           "qpos": 7, "qvel": 7}
+FLAG_KEYS = ("self_collision", "reachable")
+# Physical bounds: a finite value beyond them is a damaged file, never a motion of this arm (it
+# would overflow the metrics and drop the seed from one set). NaN and inf are not refused here:
+# metrics names such seeds and leaves them out of every set.
+LIMITS = {"t": (1e6, "s, longer than any episode"),
+          "ee_pos": (100.0, "m, farther than any position"),
+          "target_pos": (100.0, "m, farther than any position"),
+          "lead": (100.0, "m, farther than any position"),
+          "collision_depth": (100.0, "m, deeper than any contact"),
+          "target_vel": (1e4, "m/s, faster than any speed"),
+          "qvel": (1e4, "rad/s, faster than any speed"),
+          "target_acc": (1e6, "m/s^2, beyond any acceleration"),
+          "qpos": (1e4, "rad, beyond any joint angle")}
+
+
+def _damaged(path: Path, what: str) -> RolloutError:
+    return RolloutError(f"{path}: not a valid rollout file ({what}); the file is damaged, "
+                        "write it again")
+
+
+def _read_array(z: zipfile.ZipFile, path: Path, key: str, limit: int) -> np.ndarray:
+    """One .npy member, decompressed only up to ``limit`` bytes and parsed without trusting its
+    header: the shape and dtype it declares must account for exactly the bytes it holds."""
+    try:
+        info = z.getinfo(f"{key}.npy")
+    except KeyError:
+        raise _damaged(path, f"no {key} array") from None
+    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+        raise _damaged(path, f"{key} is compressed with method {info.compress_type}, which "
+                       "numpy never writes")
+    if info.file_size > limit:
+        raise _damaged(path, f"{key} would expand to {info.file_size:,} bytes, more than the "
+                       f"{limit:,} a rollout array may")
+    with z.open(info) as f:
+        raw = f.read(limit + 1)
+    if len(raw) > limit:
+        raise _damaged(path, f"{key} expands beyond {limit:,} bytes")
+    buf = io.BytesIO(raw)
+    version = np.lib.format.read_magic(buf)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
+    else:
+        raise _damaged(path, f"{key} is an .npy of version {version}")
+    if dtype.hasobject or dtype.kind not in "biufU":
+        raise _damaged(path, f"{key} has dtype {dtype}")
+    count = math.prod(shape)
+    if count * dtype.itemsize != len(raw) - buf.tell():
+        raise _damaged(path, f"{key}'s header says {shape} {dtype}, but it holds "
+                       f"{len(raw) - buf.tell():,} bytes")
+    arr = np.frombuffer(raw, dtype=dtype, count=count, offset=buf.tell())
+    return arr.reshape(shape, order="F" if fortran else "C").copy()
+
+
+def _open_checked(path: Path) -> zipfile.ZipFile:
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise _damaged(path, f"{size:,} bytes, more than the {MAX_FILE_BYTES:,} any rollout "
+                       "file is")
+    return zipfile.ZipFile(path)
+
+
+def _read_meta(z: zipfile.ZipFile, path: Path) -> dict:
+    arr = _read_array(z, path, "meta", MAX_META_BYTES)
+    if arr.shape != () or arr.dtype.kind != "U":
+        raise _damaged(path, f"meta must be one string, got {arr.shape} {arr.dtype}")
+    try:
+        meta = json.loads(str(arr))
+    except json.JSONDecodeError as exc:
+        raise _damaged(path, f"meta is not JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise _damaged(path, f"meta must be a JSON object, got {type(meta).__name__}")
+    return meta
+
+
+def check_meta(meta: dict, path: Path) -> None:
+    """The metadata every reader relies on: an integer seed, a shape name, a positive finite
+    dt and duration. RolloutError naming the file and the field."""
+    seed = meta.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise _damaged(path, f"meta seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
+    if not isinstance(meta.get("shape"), str):
+        raise _damaged(path, f"meta shape must be a name, got {meta.get('shape')!r}")
+    for key in ("dt", "duration"):
+        v = meta.get(key)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not (
+                math.isfinite(v) and v > 0):
+            raise _damaged(path, f"meta {key} must be a positive finite number, got {v!r}")
+
+
+def check_arrays(fields: dict[str, np.ndarray], path: Path) -> None:
+    """Shapes (T,), (T, 3), (T, 7) with one T >= 1; numeric (flags: bool or integer) dtypes;
+    no finite value beyond LIMITS. RolloutError naming the file, the array and the step."""
+    T = fields["t"].shape[0] if fields["t"].ndim == 1 else -1
+    for key in ARRAY_KEYS:
+        a = fields[key]
+        want = (T, COLUMNS[key]) if key in COLUMNS else (T,)
+        if T < 1 or a.shape != want:
+            shown = "(T,)" if key not in COLUMNS else f"(T, {COLUMNS[key]})"
+            raise _damaged(path, f"{key} has shape {a.shape}, expected {shown} with the same "
+                           f"T >= 1 as t {fields['t'].shape}")
+        kinds = "biu" if key in FLAG_KEYS else "iuf"
+        if a.dtype.kind not in kinds:
+            raise _damaged(path, f"{key} has dtype {a.dtype}, expected "
+                           f"{'bool' if key in FLAG_KEYS else 'numbers'}")
+        if key in LIMITS:
+            limit, words = LIMITS[key]
+            with np.errstate(invalid="ignore"):
+                beyond = np.isfinite(a) & (np.abs(a) > limit)
+            if beyond.any():
+                step = int(np.argwhere(beyond)[0][0])
+                value = a.reshape(T, -1)[step][beyond.reshape(T, -1)[step]][0]
+                raise _damaged(path, f"{key} holds {value:g} at step {step}, beyond {limit:g} "
+                               f"{words}")
+
 
 def load(path: Path) -> Rollout:
+    """Read and check a rollout file: every array's size is bounded before it is decompressed,
+    shapes, dtypes, meta and physical ranges are checked; any flaw is one RolloutError line."""
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in (*ARRAY_KEYS, "meta") if k not in data.files]
+        with _open_checked(path) as z:
+            names = set(z.namelist())
+            missing = [k for k in (*ARRAY_KEYS, "meta") if f"{k}.npy" not in names]
             if missing:
                 raise RolloutError(f"{path}: not a rollout file, missing {', '.join(missing)}")
-            fields = {k: data[k] for k in ARRAY_KEYS}
-            meta = json.loads(str(data["meta"]))
+            meta = _read_meta(z, path)
+            fields = {k: _read_array(z, path, k, MAX_ARRAY_BYTES) for k in ARRAY_KEYS}
     except RolloutError:
         raise
     except _READ_ERRORS as exc:
         raise RolloutError(f"{path}: cannot read rollout ({type(exc).__name__}: {exc}); the file "
                            "is damaged or truncated, write it again") from None
+    check_meta(meta, path)
+    check_arrays(fields, path)
     return Rollout(**fields, meta=meta)
 
 
 def read_meta(path: Path) -> dict:
-    """A rollout file's metadata alone (decompresses only that member)."""
+    """A rollout file's metadata alone (decompresses only that member, bounded), checked."""
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return json.loads(str(data["meta"]))
+        with _open_checked(path) as z:
+            meta = _read_meta(z, path)
+    except RolloutError:
+        raise
     except _READ_ERRORS as exc:
         raise RolloutError(f"{path}: cannot read rollout ({type(exc).__name__}: {exc})") from None
+    check_meta(meta, path)
+    return meta
 
 
 def list_prefixes(root: Path = ROLLOUT_DIR) -> list[str]:

@@ -33,11 +33,20 @@ POOL_SEEDS = range(1_000_000, 1_010_000)
 TRAIN_SEED_LOW, TRAIN_SEED_HIGH = 10_000_000, 2**31 - 1
 # One rollout file per seed: a range larger than this is a typo (0-99999999 would be 100M files).
 MAX_SEEDS = 100_000
+# The largest trajectory seed: seeds are held as int64 (a batch's traj_seeds, numpy's arrays).
+MAX_SEED = 2**63 - 1
+
+
+def check_seed(seed: int, flag: str = "--seed") -> int:
+    """A trajectory seed must be an integer in 0..MAX_SEED; else UserError naming ``flag``."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise UserError(f"{flag} must be an integer in 0..{MAX_SEED} (2^63-1), got {seed!r}")
+    return seed
 
 
 def parse_seed_range(text: str) -> list[int]:
-    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work. Bad ranges, and more than
-    MAX_SEEDS seeds in all, raise UserError (before any list is built)."""
+    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work. Bad ranges, seeds above
+    MAX_SEED, and more than MAX_SEEDS seeds in all, raise UserError (before any list is built)."""
     seeds: list[int] = []
     count = 0
     text = str(text).strip()
@@ -46,6 +55,9 @@ def parse_seed_range(text: str) -> list[int]:
     for part in text.split(","):
         part = part.strip()
         lo_s, sep, hi_s = part.partition("-")
+        if max(len(lo_s.strip()), len(hi_s.strip())) > len(str(MAX_SEED)):
+            raise UserError(f"seed range {part[:40] + '...'!r}: seeds are at most {MAX_SEED} "
+                            "(2^63-1)")
         try:
             if not sep:
                 lo = hi = int(part)
@@ -59,6 +71,8 @@ def parse_seed_range(text: str) -> list[int]:
             ) from None
         if lo < 0:
             raise UserError(f"seed range {part!r}: seeds are non-negative integers")
+        if hi > MAX_SEED:
+            raise UserError(f"seed range {part!r}: seeds are at most {MAX_SEED} (2^63-1)")
         if hi < lo:
             raise UserError(f"seed range {part!r} is empty: {hi} < {lo}")
         count += hi - lo + 1

@@ -30,11 +30,20 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import tyro
-
-from panda_lead.errors import UserError, exit_on_user_error
+from panda_lead.errors import UserError, check_plain_name, exit_on_user_error, parse_cli
 
 SWEEPS_DIR = Path("sweeps")
+# How long a SQLite write waits for another worker's transaction before failing ("database is
+# locked"); SQLite's own default, 5 s, is shorter than a busy study's commits can take.
+SQLITE_TIMEOUT_S = 60.0
+# The storage backends this project installs a driver for.
+BACKENDS = ("sqlite", "postgresql", "postgres")
+# train.py flags every trial gets from the sweep itself: --train-args may not set them.
+SWEEP_FLAGS = ("--seed", "--timesteps", "--eval-freq", "--runs-dir", "--name", "--resume",
+               "--archive", "--force", "--help", "-h")
+GRID_FLAGS = ("--preset",)
+SEARCH_FLAGS = ("--learning-rate", "--n-epochs", "--batch-size", "--n-steps", "--gamma",
+                "--log-std-init")
 
 
 @dataclass
@@ -119,6 +128,14 @@ def take_password(args: Args) -> Args:
     return replace(args, storage=clean)
 
 
+def check_storage_url(url: str) -> None:
+    """A URL of a backend this project can open (no driver is imported to find out)."""
+    backend = _parse_url(url).get_backend_name()
+    if backend not in BACKENDS:
+        raise UserError(f"--storage {shown(url)}: no driver for {backend!r} databases here; use "
+                        "sqlite:///PATH.db or postgresql://user@host:port/db")
+
+
 def engine_url(url: str) -> str:
     """postgresql:// (and postgres://) -> postgresql+psycopg://: the psycopg 3 driver this project
     installs, whatever SQLAlchemy's default driver for the plain scheme is (psycopg2 before 2.1)."""
@@ -138,14 +155,22 @@ def storage_for(args: Args, name: str):
     # Heartbeats and the stale-trial retry are marked experimental; they are what we rely on.
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
 
-    url = args.storage or f"sqlite:///{SWEEPS_DIR / name}.db"
-    if url.startswith("sqlite:///"):
-        Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+    url = storage_url(args, name)
+    check_storage_url(url)
+    sqlite = _parse_url(url).get_backend_name() == "sqlite"
+    if sqlite and url.startswith("sqlite:///"):
+        db = Path(url.removeprefix("sqlite:///"))
+        if db.parent.exists() and not db.parent.is_dir():
+            raise UserError(f"cannot open the study storage {shown(url)}: {db.parent} is a file, "
+                            "not a folder")
+        db.parent.mkdir(parents=True, exist_ok=True)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    engine_kwargs = {"connect_args": {"timeout": SQLITE_TIMEOUT_S}} if sqlite else {}
 
     for attempt in range(5):
         try:
-            return RDBStorage(engine_url(url), heartbeat_interval=args.heartbeat,
+            return RDBStorage(engine_url(url), engine_kwargs=engine_kwargs,
+                              heartbeat_interval=args.heartbeat,
                               grace_period=3 * args.heartbeat,
                               heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(
                                   max_retry=args.max_retry))
@@ -153,15 +178,111 @@ def storage_for(args: Args, name: str):
             # Machines started at once on a fresh database race to create Optuna's tables;
             # the loser retries and finds them made.
             time.sleep(0.5 + attempt)
-        except sqlalchemy.exc.OperationalError as exc:
-            # Unreachable server, wrong password, no such database: libpq's reason, one line
-            # (libpq never repeats the password; the URL is shown masked).
+        except sqlalchemy.exc.DatabaseError as exc:
+            # Unreachable server, wrong password, no such database, a file that is not a
+            # SQLite database: the driver's reason, one line (libpq never repeats the
+            # password; the URL is shown masked).
             reason = " ".join(str(exc.orig or exc).split())
             raise UserError(f"cannot open the study storage {shown(url)}: {reason}") from None
         except ImportError:
             raise UserError(f"the database driver of {shown(url)} is not installed; "
                             "postgresql://... uses psycopg 3, which is") from None
     raise RuntimeError(f"could not open the Optuna storage {shown(url)}")
+
+
+def storage_url(args: Args, name: str) -> str:
+    return args.storage or f"sqlite:///{SWEEPS_DIR / name}.db"
+
+
+def storage_errors() -> tuple[type[BaseException], ...]:
+    """What a storage that fails mid-study raises (through Optuna or directly)."""
+    import optuna
+    import sqlalchemy.exc
+
+    return (sqlalchemy.exc.SQLAlchemyError, optuna.exceptions.StorageInternalError)
+
+
+def storage_failure(exc: BaseException) -> BaseException | None:
+    """The storage error behind ``exc``, else None: the deepest in its chain (the driver's,
+    which says why: "database is locked"), as Optuna wraps it, or fails again while
+    recording the failed trial."""
+    errors, seen, found = storage_errors(), set(), None
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, errors):
+            found = exc
+        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
+    return found
+
+
+def trial_argv(args: Args, flags: list[str], number: int) -> list[str]:
+    """A trial's train.py command line: its own flags, the sweep's, then --train-args."""
+    return [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
+            "--runs-dir", str(SWEEPS_DIR / args.name / "runs"), "--name", f"t{number:04d}",
+            "--no-progress", *shlex.split(args.train_args)]
+
+
+def parse_train_args(argv: list[str]):
+    """train.py's own parser on a trial's command line; a bad one is one UserError line."""
+    from panda_lead.cli.train import parse_args
+    from panda_lead.errors import call_cli
+
+    return call_cli(lambda: parse_args(argv, prog="train.py"), "train.py")
+
+
+def check_args(args: Args) -> None:
+    """Everything a study needs, checked before it starts (nothing is created on a refusal):
+    names, counts, and every trial's train.py command line, parsed as the trial will parse it
+    and checked to fit in memory."""
+    import torch
+
+    from panda_lead.training.config import check_fits
+    from panda_lead.training.loop import check_device
+
+    check_plain_name(args.name, "--name")
+    for flag, value in (("--report", args.report), ("--archive", args.archive),
+                        ("--archive-as", args.archive_as)):
+        if value is not None:
+            check_plain_name(value, flag)
+    if args.storage:
+        check_storage_url(args.storage)
+    for flag, value, low in (("--heartbeat", args.heartbeat, 1), ("--max-retry", args.max_retry, 0),
+                             ("--workers", args.workers, 1), ("--n-trials", args.n_trials, 1),
+                             ("--timesteps", args.timesteps, 1), ("--eval-freq", args.eval_freq, 1)):
+        if value < low:
+            raise UserError(f"{flag} must be at least {low}, got {value}")
+    if args.report or args.archive:
+        return
+    if not args.search:
+        from panda_lead.training import get_preset
+
+        if not args.presets or not args.seeds:
+            raise UserError("a grid needs at least one --presets and one --seeds")
+        for p in args.presets:
+            if p != "default":
+                get_preset(p)  # "did you mean" before any work starts
+    try:
+        extra = shlex.split(args.train_args)
+    except ValueError as exc:  # an unclosed quote
+        raise UserError(f"--train-args {args.train_args!r}: {exc}") from None
+    owned = SWEEP_FLAGS + (SEARCH_FLAGS if args.search else GRID_FLAGS)
+    taken = sorted({a.split("=")[0] for a in extra if a.split("=")[0] in owned})
+    if taken:
+        raise UserError(f"--train-args may not set {', '.join(taken)}: the sweep sets "
+                        f"{'it' if len(taken) == 1 else 'them'} for every trial")
+    if args.search:
+        grid = [["--seed", "0"]]
+    else:
+        grid = [["--seed", str(seed)] + ([] if p == "default" else ["--preset", p])
+                for p in args.presets for seed in args.seeds]
+    for flags in grid:
+        try:
+            targs = parse_train_args(trial_argv(args, flags, 0))
+            check_fits(targs.config())
+            check_device(targs.device, torch)
+        except UserError as exc:
+            raise UserError(f"a trial's train.py flags ({shlex.join(flags + extra)}): "
+                            f"{exc}") from None
 
 
 def grid_space(args: Args) -> dict:
@@ -206,14 +327,9 @@ def objective(trial, args: Args) -> float:
     import optuna
 
     from panda_lead import training
-    from panda_lead.cli.train import parse_args
 
     flags, params = suggest(trial, args)
-    run_root = SWEEPS_DIR / args.name / "runs"
-    argv = [*flags, "--timesteps", str(args.timesteps), "--eval-freq", str(args.eval_freq),
-            "--runs-dir", str(run_root), "--name", f"t{trial.number:04d}", "--no-progress",
-            *shlex.split(args.train_args)]
-    targs = parse_args(argv)
+    targs = parse_train_args(trial_argv(args, flags, trial.number))
     pruned = []
 
     def on_eval(step: int, res: dict) -> bool:
@@ -303,18 +419,26 @@ def launch(args: Args) -> None:
         raise SystemExit(f"a worker exited with {codes}; rerun the command to continue")
 
 
+def load_study(args: Args, name: str):
+    """An existing study (never creates one, nor its SQLite file)."""
+    import optuna
+
+    where = shown(args.storage) if args.storage else f"{SWEEPS_DIR}/"
+    if not args.storage and not (SWEEPS_DIR / f"{name}.db").is_file():
+        raise UserError(f"no study named {name!r} in {where} (no {SWEEPS_DIR / name}.db)")
+    try:
+        return optuna.load_study(study_name=name, storage=storage_for(args, name))
+    except KeyError:
+        raise UserError(f"no study named {name!r} in {where}") from None
+
+
 def report(args: Args, name: str) -> None:
     import numpy as np
-    import optuna
     from rich.console import Console
     from rich.table import Table
     from scipy import stats
 
-    try:
-        study = optuna.load_study(study_name=name, storage=storage_for(args, name))
-    except KeyError:
-        where = shown(args.storage) if args.storage else f"{SWEEPS_DIR}/"
-        raise UserError(f"no study named {name!r} in {where}") from None
+    study = load_study(args, name)
     trials = study.get_trials(deepcopy=False)
     table = Table(title=f"study {name}: {len(trials)} trials")
     for col in ("#", "state", "configuration", "seed", "eval error (cm)", "wall (s)"):
@@ -352,11 +476,7 @@ def archive(args: Args, name: str) -> None:
 
     from panda_lead import training
 
-    try:
-        study = optuna.load_study(study_name=name, storage=storage_for(args, name))
-    except KeyError:
-        where = shown(args.storage) if args.storage else f"{SWEEPS_DIR}/"
-        raise UserError(f"no study named {name!r} in {where}") from None
+    study = load_study(args, name)
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     if args.archive_preset is not None:
         done = [t for t in done if t.params.get("preset") == args.archive_preset]
@@ -373,9 +493,64 @@ def archive(args: Args, name: str) -> None:
     print(f"best trial #{best.number} ({best.value:.2f} cm, {best.params}) -> {path}")
 
 
+class _NoStorageTraceback:
+    """A logging filter for Optuna's handler: its 'Trial N failed ... because of' record (with
+    a traceback) and the 'Trial N failed with value' that follows it are dropped when the
+    failure is the storage's; main says it in one line instead."""
+
+    def __init__(self):
+        self.dropped: str | None = None  # "Trial N " of the last record dropped
+
+    def filter(self, record) -> bool:
+        text = record.getMessage()
+        exc = record.exc_info[1] if record.exc_info else None
+        if exc is not None and storage_failure(exc) is not None:
+            self.dropped = " ".join(text.split()[:2]) + " "
+            return False
+        if self.dropped and text.startswith(self.dropped + "failed with value"):
+            self.dropped = None
+            return False
+        return True
+
+
+def _quiet_storage_tracebacks() -> None:
+    import logging
+
+    import optuna
+
+    optuna.logging.get_logger("optuna")  # makes Optuna's own handler
+    for handler in logging.getLogger("optuna").handlers:
+        handler.addFilter(_NoStorageTraceback())
+
+
 @exit_on_user_error
 def main() -> None:
-    args = take_password(tyro.cli(Args, description=__doc__))
+    try:
+        args = take_password(parse_cli(Args, None, description=__doc__))
+    except UserError as exc:
+        if "'--train-args'" not in str(exc):
+            raise
+        raise UserError(f"{exc}; give the flags after an equals sign, as one string: "
+                        "--train-args=\"--n-envs 4 --vec-env dummy\"") from None
+    check_args(args)
+    _quiet_storage_tracebacks()
+    try:
+        run(args)
+    except UserError:
+        raise
+    except Exception as exc:
+        lost = storage_failure(exc)
+        if lost is None:
+            raise
+        name = args.report or args.archive or args.name
+        reason = " ".join(str(getattr(lost, "orig", None) or lost).split())[:300]
+        if len(reason) == 300:
+            reason += "..."
+        raise UserError(f"the study storage {shown(storage_url(args, name))} failed: {reason}; "
+                        "finished trials are kept, rerun the same command to continue") from None
+
+
+def run(args: Args) -> None:
     if args.report:
         report(args, args.report)
     elif args.archive:
@@ -383,14 +558,6 @@ def main() -> None:
     elif args.worker_id >= 0:
         work(args)
     else:
-        from panda_lead.training import get_preset
-
-        try:
-            for p in args.presets:
-                if p != "default":
-                    get_preset(p)  # "did you mean" before any work starts
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
         launch(args)
         report(args, args.name)
 

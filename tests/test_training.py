@@ -14,6 +14,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from panda_lead.cli.train import parse_args
@@ -263,6 +264,10 @@ def test_a_signal_to_the_main_process_alone_saves_and_resume_appends(tmp_path, s
     final = json.loads((run_dir / "final_model.json").read_text())
     assert final["timesteps"] == fallback + 128
     assert len(csv.read_text().splitlines()) > rows_before  # appended, not cut
+    # Regression (issue 21): the wall time counted only the resumed part (a module-level clock
+    # reset on resume); it carries on from the checkpoint's.
+    before = json.loads(ckpts[fallback].read_text())["wall_time_s"]
+    assert final["wall_time_s"] >= before > 0
 
 
 def test_resume_refuses_to_change_what_the_run_learns(tmp_path):
@@ -313,3 +318,57 @@ def test_a_cuda_device_that_is_not_there_is_a_clear_error():
         check_device("gpu0", Torch(gpu=True))
     check_device("cuda:0", Torch(gpu=True))
     check_device("cpu", Torch(gpu=False))
+
+
+def _drawn_trajectory_seeds(kind: str, seed: int, n_envs: int = 3, episodes: int = 2):
+    """The training trajectory seeds each env of a training vec env draws, episode by episode
+    (through PPO's own seeding call, as training makes them)."""
+    from stable_baselines3 import PPO
+
+    from panda_lead.training.envs import make_vec_env
+
+    vec = make_vec_env(EnvConfig(episode_steps=2), n_envs, seed, kind, n_workers=1)
+    PPO("MlpPolicy", vec, seed=seed, n_steps=64, device="cpu")  # SB3 reseeds the envs here
+    vec.reset()
+    drawn = [[] for _ in range(n_envs)]
+    for _ in range(episodes):
+        for i, s in enumerate(vec.env_method("get_wrapper_attr", "task") if kind != "batched"
+                              else [None] * n_envs):
+            drawn[i].append(int(s.traj_seeds[0]) if s is not None else None)
+        if kind == "batched":
+            for i, s in enumerate(vec.venv.task.traj_seeds if hasattr(vec, "venv")
+                                  else vec.task.traj_seeds):
+                drawn[i][-1] = int(s)
+        for _ in range(2):
+            vec.step(np.zeros((n_envs, 3), np.float32))
+    vec.close()
+    return drawn
+
+
+@pytest.mark.parametrize("kind", ["dummy", "batched"])
+def test_training_seeds_draw_disjoint_streams_whatever_the_vec_env(kind):
+    """Regression (issue 21): with --vec-env dummy/subproc, PPO reseeded env i with seed + i,
+    so training seeds s and s+1 shared n-1 of their n trajectory streams."""
+    a, b = _drawn_trajectory_seeds(kind, 5), _drawn_trajectory_seeds(kind, 6)
+    flat_a, flat_b = {x for row in a for x in row}, {x for row in b for x in row}
+    assert len(flat_a) == 6 and not flat_a & flat_b
+    if kind == "dummy":  # and the same streams as the batched env (one rule for all)
+        assert a == _drawn_trajectory_seeds("batched", 5)
+
+
+def test_the_loop_raises_training_interrupted_after_saving(tmp_path):
+    """Regression (issue 21): training.train() raised SystemExit itself, which a library caller
+    (a sweep, a notebook) could not tell from a real exit. It saves, then raises an exception
+    of its own; train.py turns that into exit status 128 + the signal."""
+    from panda_lead.training import TrainingInterrupted, train
+
+    args = parse_args(["--timesteps", "1024", "--eval-freq", "128", "--runs-dir",
+                       str(tmp_path / "runs"), *TINY])
+
+    def ctrl_c(step, metrics):
+        raise KeyboardInterrupt
+
+    with pytest.raises(TrainingInterrupted) as info:
+        train(args, on_eval=ctrl_c)
+    assert info.value.signum == signal.SIGINT
+    assert (info.value.run_dir / "interrupted_model.zip").is_file()

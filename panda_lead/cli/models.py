@@ -10,9 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import tyro
-
-from ..errors import UserError, exit_on_user_error
+from ..errors import UserError, exit_on_user_error, parse_cli
 from ..models import restore_sidecar, verify
 from .run import EnvOverrides, given
 
@@ -55,7 +53,7 @@ class AdoptArgs:
 
 @exit_on_user_error
 def restore(argv: list[str], prog: str) -> None:
-    args = tyro.cli(RestoreArgs, args=argv, prog=prog, description=__doc__)
+    args = parse_cli(RestoreArgs, argv, prog=prog, description=__doc__)
     path = restore_sidecar(args.model)
     verify(args.model)
     print(f"wrote {path} from the sidecar {args.model} carries")
@@ -65,7 +63,7 @@ def restore(argv: list[str], prog: str) -> None:
 def adopt(argv: list[str], prog: str) -> None:
     from ..adopt import adopt as adopt_model
 
-    args = tyro.cli(AdoptArgs, args=argv, prog=prog)
+    args = parse_cli(AdoptArgs, argv, prog=prog)
     adopt_model(args.adopt, args.name, given(args.env), force=args.force)
 
 

@@ -17,7 +17,7 @@ import tyro
 
 from .. import harness
 from ..config import EnvConfig, config_docs
-from ..errors import UserError, did_you_mean, exit_on_user_error
+from ..errors import UserError, did_you_mean, exit_on_user_error, parse_cli
 from ..ilc import ILCConfig
 
 
@@ -217,6 +217,7 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
             time.sleep(max(0.0, env.dt - (time.perf_counter() - start)))
 
 
+@exit_on_user_error  # a bad command line is one line too (parse_cli)
 def run_controller_cli(default_controller: str, default_prefix: str, argv, prog: str,
                        description: str | None = None) -> None:
     from . import models as model_commands
@@ -225,7 +226,7 @@ def run_controller_cli(default_controller: str, default_prefix: str, argv, prog:
         model_commands.main(list(argv), prog)
         return
     defaults = Args(controller=default_controller, prefix=default_prefix)
-    args = tyro.cli(Args, args=argv, default=defaults, prog=prog, description=description)
+    args = parse_cli(Args, argv, default=defaults, prog=prog, description=description)
     _run(args)
 
 

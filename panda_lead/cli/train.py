@@ -13,7 +13,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ..errors import UserError, exit_on_user_error
+from ..errors import UserError, exit_on_user_error, parse_cli
 from ..training.config import (
     REFERENCE_HPARAMS,
     RESUME_MAY_CHANGE,
@@ -31,8 +31,6 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
     """The command line -> TrainArgs. ``--preset NAME`` (or ``--resume RUN``: the run's
     config) and ``--reference-hparams`` choose the defaults; every flag given overrides them,
     even when it equals the plain default. ``--preset v5 --help`` shows v5's values."""
-    import tyro
-
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     pre.add_argument("--preset")
     pre.add_argument("--resume")
@@ -51,7 +49,7 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
         base = dataclasses.replace(base, **REFERENCE_HPARAMS)
     default = TrainArgs(**{f.name: getattr(base, f.name) for f in dataclasses.fields(TrainConfig)},
                         reference_hparams=known.reference_hparams)
-    args = tyro.cli(TrainArgs, args=argv, default=default, prog=prog, description=description)
+    args = parse_cli(TrainArgs, argv, default=default, prog=prog, description=description)
     if known.resume:
         changed = [f.name for f in dataclasses.fields(TrainConfig)
                    if f.name not in RESUME_MAY_CHANGE and getattr(args, f.name) != getattr(base, f.name)]

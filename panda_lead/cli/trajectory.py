@@ -7,27 +7,36 @@
 
 from __future__ import annotations
 
-import sys
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import UserError, check_output, exit_on_user_error, parse_cli
+from ..seeds import check_seed
 from ..trajectory import REACH_RADIUS, SHOULDER, Trajectory, leaves_reach, out_of_reach, sample
+
+# The longest span drawn or checked (the env's longest episode is 1,000 s): beyond it the path
+# would be sampled into arrays of billions of points, a typo rather than a wish.
+MAX_DURATION_S = 1000.0
 
 
 @dataclass
 class Args:
     seed: int = 0
-    """Trajectory seed (a non-negative integer)."""
+    """Trajectory seed (an integer in 0..2^63-1)."""
     shape: str | None = None
     """Force the shape (circle, fig8, fly) instead of drawing it from the seed."""
     duration: float = 5.0
-    """Seconds of trajectory to draw."""
+    """Seconds of trajectory to draw (at most 1,000)."""
     show: bool = False
     """Open a plot window (needs a display; otherwise pass --out)."""
     out: Path | None = None
-    """Save the plot to this PNG instead of (or as well as) showing it."""
+    """Save the plot to this PNG instead of (or as well as) showing it. An existing file is
+    kept unless --force."""
+    force: bool = False
+    """Replace an existing --out file."""
 
 
 def plot(traj: Trajectory, duration: float, out: Path | None, show: bool) -> None:
@@ -83,23 +92,24 @@ def plot(traj: Trajectory, duration: float, out: Path | None, show: bool) -> Non
     plt.close(fig)
 
 
+@exit_on_user_error
 def main(argv: list[str] | None = None) -> int:
-    import tyro
-
-    args = tyro.cli(Args, args=argv, description=__doc__)
+    args = parse_cli(Args, argv, description=__doc__)
+    check_seed(args.seed)
+    if not (math.isfinite(args.duration) and 0 < args.duration <= MAX_DURATION_S):
+        raise UserError(f"--duration must be a number of seconds in (0, {MAX_DURATION_S:g}], "
+                        f"got {args.duration}")
     try:
         traj = sample(args.seed, args.shape)
-        if not args.duration > 0:
-            raise ValueError(f"--duration must be > 0, got {args.duration}")
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    except ValueError as e:  # an unknown shape, with "did you mean"
+        raise UserError(str(e)) from None
+    if args.out is not None:
+        check_output(args.out, "--out", args.force)
     from ..display import has_display
 
     display = has_display()
     if args.show and args.out is None and not display:
-        print("error: no display: use --out FILE.png", file=sys.stderr)
-        return 2
+        raise UserError("no display: use --out FILE.png")
     if args.show or args.out is not None:
         plot(traj, args.duration, args.out, args.show and display)
         return 0

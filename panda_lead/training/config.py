@@ -99,7 +99,8 @@ class TrainConfig:
         if self.n_steps * self.n_envs < 2:
             raise UserError("a PPO rollout needs at least 2 steps: raise --n-steps or --n-envs")
         for name, lo, hi, lo_open in (("gamma", 0, 1, True), ("gae_lambda", 0, 1, False),
-                                      ("learning_rate", 0, math.inf, True),
+                                      # above 1, Adam's steps overflow (a traceback mid-run)
+                                      ("learning_rate", 0, 1, True),
                                       ("clip_range", 0, math.inf, True),
                                       ("ent_coef", 0, math.inf, False),
                                       ("log_std_init", -math.inf, math.inf, False)):
