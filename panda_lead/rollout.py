@@ -88,9 +88,9 @@ def rollout_path(prefix: str, seed: int, root: Path = ROLLOUT_DIR) -> Path:
     return Path(root) / prefix / f"seed_{seed:04d}.npz"
 
 
-class RolloutError(UserError, ValueError):
-    """A rollout file that cannot be read (truncated, not a rollout). Also a ValueError, for
-    callers written before UserError."""
+class RolloutError(UserError):
+    """A rollout file that cannot be read (truncated, not a rollout). Not a ValueError: a
+    caller that turns ValueErrors into user errors would hide real bugs with it."""
 
 
 class NoRollouts(UserError, FileNotFoundError):

@@ -45,8 +45,9 @@ def check_seed(seed: int, flag: str = "--seed") -> int:
 
 
 def parse_seed_range(text: str) -> list[int]:
-    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work. Bad ranges, seeds above
-    MAX_SEED, and more than MAX_SEEDS seeds in all, raise UserError (before any list is built)."""
+    """'7' -> [7]; '0-99' -> [0..99]; '1,4,9' and '0-4,10' also work; a seed named twice
+    ('0-5,3-8') is played once, in first-named order. Bad ranges, seeds above MAX_SEED, and
+    more than MAX_SEEDS seeds in all, raise UserError (before any list is built)."""
     seeds: list[int] = []
     count = 0
     text = str(text).strip()
@@ -80,4 +81,4 @@ def parse_seed_range(text: str) -> list[int]:
             raise UserError(f"seed range {text!r} holds more than {MAX_SEEDS:,} seeds (one file "
                             "each); split it into smaller runs")
         seeds.extend(range(lo, hi + 1))
-    return seeds
+    return list(dict.fromkeys(seeds))  # overlapping parts once: one rollout file per seed

@@ -155,6 +155,19 @@ def test_seeds_beyond_int64_are_one_line():
         assert len(str(exc.value)) < 200
 
 
+def test_overlapping_seed_ranges_play_each_seed_once(tmp_path):
+    """Regression (issue 21): '0-2,1-3' played and wrote seeds 1 and 2 twice."""
+    from panda_lead.seeds import parse_seed_range
+
+    assert parse_seed_range("3-5,0-4") == [3, 4, 5, 0, 1, 2]
+    out = run(ROOT / "ikpd.py", "--seeds", "0-1,1-2", "--prefix", "p", "--duration", "0.05",
+              cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in (tmp_path / "rollouts" / "p").glob("*.npz")) == [
+        "seed_0000.npz", "seed_0001.npz", "seed_0002.npz"]
+    assert "wrote 3 rollouts" in out.stdout
+
+
 @pytest.mark.parametrize("script,args", [
     ("ikpd.py", ["--seeds", str(2**64), "--prefix", "p"]),
     ("ikpd.py", ["--seed", str(2**64), "--video", "v.mp4"]),

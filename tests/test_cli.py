@@ -143,3 +143,19 @@ def test_video_is_a_playable_mp4(tmp_path):
 
     frames = imageio.mimread(tmp_path / "v.mp4")
     assert len(frames) == 15 and frames[0].shape == (480, 640, 3)
+
+
+def test_the_default_model_is_the_headline_model_whatever_the_file_times(tmp_path):
+    """Regression (issue 21): the default was "the newest zip in archive/" by mtime, which git
+    does not keep, so a fresh clone played whichever file was checked out last."""
+    from panda_lead.models import DEFAULT_MODEL, file_sha256
+
+    headline = ROOT / "archive" / f"{DEFAULT_MODEL}.zip"
+    out = run(ROOT / "eval.py", "--seeds", "0", "--prefix", "x", "--duration", "0.05",
+              cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    with np.load(tmp_path / "rollouts" / "x" / "seed_0000.npz", allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+    newest = max((ROOT / "archive").glob("*.zip"), key=lambda p: p.stat().st_mtime)
+    assert meta["model_sha256"] == file_sha256(headline)
+    assert newest == headline or meta["model_sha256"] != file_sha256(newest)

@@ -39,3 +39,98 @@ def test_a_collision_terminating_model_is_evaluated_to_the_end():
     assert all(len(r.t) == 300 and r.meta["failure"] is None for r in rollouts)
     touched = [r.seed for r in rollouts if np.any(r.self_collision)]
     assert touched  # these collide, yet run to the end
+
+
+# --- issue 25, items 11, 13 and 18: one identity rule, streamed sets, contradicting flags -----
+
+def _ikpd(tmp_path, *args):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, str(ROOT / "ikpd.py"), *map(str, args)], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_one_model_given_by_two_paths_is_one_set_and_two_taus_are_two(tmp_path):
+    """Item 11: the same model given once by absolute path was refused as "mixes 2
+    controllers", while a set mixing tau 0.04 and 0.08 was accepted."""
+    import json
+
+    from panda_lead.rollout import identity
+
+    model = ROOT / "archive" / "indep_v5.zip"
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "indep_v5.zip").symlink_to(model)
+    (tmp_path / "m" / "indep_v5.json").symlink_to(model.with_suffix(".json"))
+    for seeds, path in (("0", model), ("1", "m/indep_v5.zip")):
+        out = _ikpd(tmp_path, "--controller", "policy", "--model", path, "--seeds", seeds,
+                    "--prefix", "p", "--duration", "0.05")
+        assert out.returncode == 0, out.stderr
+    files = sorted((tmp_path / "rollouts/p").glob("*.npz"))
+    metas = [json.loads(str(np.load(f)["meta"])) for f in files]
+    assert len(metas) == 2 and identity(metas[0]) == identity(metas[1])
+    for seeds, tau in (("0", 0.04), ("1", 0.08)):
+        out = _ikpd(tmp_path, "--controller", "analytic", "--tau", tau, "--seeds", seeds,
+                    "--prefix", "a", "--duration", "0.05")
+    assert out.returncode == 2 and "--force" in out.stderr  # tau 0.08 is another controller
+    assert len(list((tmp_path / "rollouts/a").glob("*.npz"))) == 1
+
+
+def test_a_set_is_written_as_episodes_finish_not_all_at_the_end(tmp_path, monkeypatch):
+    """Item 13: every episode was kept in memory and nothing written until all had played.
+    While the last batch plays, the files of the earlier batches are already on disk."""
+    ctrl = harness.build("classical", 5)
+    on_disk_while_playing = []
+
+    def small_batches(config, act, seeds, shapes, meta, **kw):  # 2 episodes per batch
+        def watching(*a, **k):
+            on_disk_while_playing.append(len(list((tmp_path / "s").glob("*.npz"))))
+            return act(*a, **k)
+        return iter_record(config, watching, seeds, shapes, meta, batch_size=2)
+
+    monkeypatch.setattr(harness, "iter_record", small_batches)
+    assert harness.write_set(ctrl, [0, 1, 2, 3, 4], None, tmp_path, "s", echo=lambda _: None) == 5
+    assert sorted(set(on_disk_while_playing)) == [0, 2, 4]  # batch 1, 2, 3
+
+
+def test_an_interrupted_set_keeps_the_episodes_it_finished(tmp_path):
+    """Item 13: Ctrl-C while writing a set was a traceback and lost everything; now the files
+    already written stay (each complete) and the message says how many."""
+    import pytest
+
+    from panda_lead.errors import UserError
+
+    ctrl = harness.build("classical", 5)
+    lines = []
+
+    def echo(line):
+        lines.append(line)
+        if len(lines) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(UserError, match="interrupted: 2 of 4 rollouts written"):
+        harness.write_set(ctrl, [0, 1, 2, 3], None, tmp_path, "s", echo=echo)
+    assert sorted(p.name for p in (tmp_path / "s").glob("*.npz")) == [
+        "seed_0000.npz", "seed_0001.npz"]
+
+
+def test_env_flags_that_contradict_the_model_are_refused_up_front(tmp_path):
+    """Item 18: --env.action joint on a lead model crashed mid-episode."""
+    for flag in (["--env.action", "joint"], ["--env.obs-stack", "3"]):
+        out = _ikpd(tmp_path, "--controller", "policy", "--seeds", "0", "--prefix", "p",
+                    "--duration", "0.05", *flag)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+        assert "contradicts the model" in out.stderr
+    assert not (tmp_path / "rollouts").exists()
+
+
+def test_a_mapping_flag_changes_only_the_keys_given():
+    """Issue 25 (also): --env.obs-noise target_vel 0.07 replaced a model's whole noise dict;
+    it sets that one feature and keeps the others, as --env.ik.iters keeps the other IK knobs."""
+    from panda_lead.config import EnvConfig
+
+    model = EnvConfig(obs_noise={"target_vel": 0.1, "ee_pos": 0.01})
+    assert model.merged({"obs_noise": {"target_vel": 0.07}}).obs_noise == {
+        "target_vel": 0.07, "ee_pos": 0.01}
+    ik = model.merged({"ik": {"iters": 2}}).ik
+    assert ik.iters == 2 and ik.damping == model.ik.damping

@@ -538,3 +538,41 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
     rollout.save(good_rollout(), target)
     assert not stale.exists() and fresh.exists()
     assert rollout.load(target).seed == 0
+
+
+def test_a_model_member_that_expands_beyond_its_bound_is_refused_before_reading(model, tmp_path):
+    """Item 1 (models): a 3 MB zip whose policy.pth (or embedded sidecar) expanded to 3 GiB made
+    eval.py peak at 6.9 GB. A member larger than its bound is refused from its header, and a
+    read never goes past the bound whatever the header says."""
+    import zipfile
+
+    from panda_lead.models import (
+        MAX_JSON_BYTES,
+        MAX_TENSOR_MEMBER_BYTES,
+        ModelError,
+        bind_sidecar,
+        file_sha256,
+        load_policy,
+        read_member,
+    )
+
+    bomb = tmp_path / "bomb.zip"
+    with zipfile.ZipFile(model) as zin, zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as zout:
+        for info in zin.infolist():
+            if info.filename != "policy.pth":
+                zout.writestr(info, zin.read(info))
+        with zout.open("policy.pth", "w", force_zip64=True) as f:  # really 300 MiB of zeros
+            chunk = bytes(2**20)
+            for _ in range(MAX_TENSOR_MEMBER_BYTES // 2**20 + 44):
+                f.write(chunk)
+    # A hostile pair is self-consistent (the hash is not a signature): its JSON names its hash.
+    edit_json(copy_pair(model, tmp_path / "m.zip"), lambda s: s.update(
+        model_sha256=file_sha256(bomb)))
+    bomb.with_suffix(".json").write_text((tmp_path / "m.json").read_text())
+    assert bomb.stat().st_size < 2 * 2**20
+    with pytest.raises(ModelError, match="policy.pth would expand"):
+        bind_sidecar(bomb)  # even the trusted re-bind copies members within their bounds
+    with pytest.raises(ModelError, match="policy.pth would expand to 3"):
+        load_policy(bomb)
+    with pytest.raises(ModelError, match="more than the 1,048,576 allowed"):
+        read_member(bomb, "policy.pth", MAX_JSON_BYTES)

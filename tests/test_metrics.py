@@ -601,3 +601,36 @@ def test_differences_by_target_speed_bins_hold_every_seed_once():
     (lo1, hi1, slow), (lo2, hi2, fast) = cmp.by_speed
     assert lo1 == pytest.approx(0.1) and hi2 == pytest.approx(2.0)
     assert slow[0].delta == pytest.approx(-2.0) and fast[0].delta == pytest.approx(2.0)
+
+
+def test_cli_oracle_prints_the_share_of_the_achievable_gain_captured(root):
+    """(A - B) / (A - oracle): base 3 cm, learned 1 cm, oracle 0.5 cm -> 80%, on every seed."""
+    write_prefix(root, "oracle", 0.005, range(4))
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned",
+                "--oracle", "oracle")
+    assert p.returncode == 0, p.stderr
+    assert "the oracle (oracle, n=4 seeds" in p.stdout
+    assert "mean error: base 3.00, learned 1.00, oracle 0.50 cm; captured 80% [80, 80]" in p.stdout
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned",
+                "--oracle", "nope")
+    assert p.returncode == 2 and "nope" in p.stderr
+
+
+def test_a_narrow_terminal_gets_the_table_in_two_halves_nothing_truncated():
+    from rich.console import Console
+
+    a = {s: offset_rollout(0.03, seed=s) for s in range(12)}
+    b = {s: offset_rollout(0.01, seed=s) for s in range(12)}
+    cmp = metrics.compare(a, b, n_boot=100)
+    assert [len(t.columns) for t in metrics_cli.metrics_tables(cmp.rows, "A", "B", "t", 240)] == [10]
+    halves = metrics_cli.metrics_tables(cmp.rows, "Classical", "RL+Lead", "t", 100)
+    assert [len(t.columns) for t in halves] == [6, 5]
+    import io
+
+    out = io.StringIO()
+    console = Console(width=100, file=out)
+    for t in halves:
+        console.print(t)
+    text = out.getvalue()
+    assert "…" not in text and "0.000488" in text and "p (Wilcoxon)" in text  # wrapped, not cut
+    assert max(len(line) for line in text.splitlines()) <= 100

@@ -321,28 +321,28 @@ def test_a_cuda_device_that_is_not_there_is_a_clear_error():
 
 
 def _drawn_trajectory_seeds(kind: str, seed: int, n_envs: int = 3, episodes: int = 2):
-    """The training trajectory seeds each env of a training vec env draws, episode by episode
-    (through PPO's own seeding call, as training makes them)."""
+    """Per env, the trajectory seeds it plays, episode by episode, when training makes the vec
+    env and PPO seeds it (SB3 calls env.seed(seed) in PPO's constructor)."""
     from stable_baselines3 import PPO
 
     from panda_lead.training.envs import make_vec_env
 
     vec = make_vec_env(EnvConfig(episode_steps=2), n_envs, seed, kind, n_workers=1)
-    PPO("MlpPolicy", vec, seed=seed, n_steps=64, device="cpu")  # SB3 reseeds the envs here
-    vec.reset()
-    drawn = [[] for _ in range(n_envs)]
-    for _ in range(episodes):
-        for i, s in enumerate(vec.env_method("get_wrapper_attr", "task") if kind != "batched"
-                              else [None] * n_envs):
-            drawn[i].append(int(s.traj_seeds[0]) if s is not None else None)
+    PPO("MlpPolicy", vec, seed=seed, n_steps=64, device="cpu")
+
+    def current() -> list[int]:
         if kind == "batched":
-            for i, s in enumerate(vec.venv.task.traj_seeds if hasattr(vec, "venv")
-                                  else vec.task.traj_seeds):
-                drawn[i][-1] = int(s)
-        for _ in range(2):
+            return [int(s) for s in vec.task.traj_seeds]
+        return [int(e.unwrapped.task.traj_seeds[0]) for e in vec.venv.venv.envs]  # dummy
+
+    vec.reset()
+    drawn = []
+    for _ in range(episodes):
+        drawn.append(current())
+        for _ in range(2):  # episode_steps=2: the second step autoresets every env
             vec.step(np.zeros((n_envs, 3), np.float32))
     vec.close()
-    return drawn
+    return [list(col) for col in zip(*drawn, strict=True)]
 
 
 @pytest.mark.parametrize("kind", ["dummy", "batched"])

@@ -8,6 +8,7 @@ import sys
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import run_script
 from gymnasium.vector import AutoresetMode
 
 from panda_lead.config import OBS_FEATURES, EnvConfig
@@ -15,8 +16,6 @@ from panda_lead.env import PandaLeadEnv
 from panda_lead.errors import UserError
 from panda_lead.sb3_vecenv import LeadVecEnv
 from panda_lead.vector import PandaLeadVecEnv
-
-from conftest import run_script
 
 # Settings that take different code (each is a branch of the single env's fast step): ragged
 # episode ends (self-collisions terminate, with big leads), observation noise (drawn per env),

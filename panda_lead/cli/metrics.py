@@ -39,7 +39,8 @@ from ..metrics.pairing import (
     seed_set_title,
     set_labels,
 )
-from ..metrics.stats import BY_KEY, Row, claim, fmt_ci, fmt_num
+from ..metrics.stats import BY_KEY, MIN_PAIRS_FOR_CLAIM, Row, claim, fmt_ci, fmt_num
+from ..metrics.stats import shown as shown_ci
 
 # Beyond these a number is a typo (the run would take hours): 10,000 resamples (the default)
 # already fix a 95% CI's bounds to about 1% of its width.
@@ -47,11 +48,22 @@ MAX_BOOTSTRAP = 100_000
 MAX_SPEED_BINS = 100
 
 
-def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str) -> Table:
+# The whole table is about 210 columns wide; below this a terminal gets it in two halves
+# (the sets, then the paired differences) instead of truncated names and p-values.
+FULL_TABLE_COLUMNS = 215
+
+
+def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str,
+                  part: str = "all") -> Table:
+    """part: "all" (one wide table), "sets" (each set's mean ± std and median) or "diffs"
+    (the paired differences B - A)."""
+    names = {"sets": ("Metric", "better", f"{label_a} mean ± std", f"{label_a} median",
+                      f"{label_b} mean ± std", f"{label_b} median"),
+             "diffs": ("Metric", "mean diff (B - A) [95% CI]", "median diff (B - A) [95% CI]",
+                       "B better", "p (Wilcoxon)")}
+    names["all"] = names["sets"] + names["diffs"][1:]
     table = Table(title=title, title_justify="left")
-    for name in ("Metric", "better", f"{label_a} mean ± std", f"{label_a} median",
-                 f"{label_b} mean ± std", f"{label_b} median", "mean diff (B - A) [95% CI]",
-                 "median diff (B - A) [95% CI]", "B better", "p (Wilcoxon)"):
+    for name in names[part]:
         table.add_column(name, justify="left" if name == "Metric" else "right")
     for r in rows:
         f = BY_KEY[r.key].fmt
@@ -59,10 +71,22 @@ def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str) -> Ta
               for m, s in ((r.mean_a, r.std_a), (r.mean_b, r.std_b))]
         share = f"{100 * r.share_improved:.0f}%" if r.n_pairs else "n/a"
         p = "n/a" if not np.isfinite(r.p) else f"{r.p:.3g}"
-        table.add_row(r.label, r.better, ms[0], fmt_num(r.median_a, f), ms[1], fmt_num(r.median_b, f),
-                      f"{fmt_num(r.delta, f, True)} {fmt_ci(r.ci, f)}",
-                      f"{fmt_num(r.median_delta, f, True)} {fmt_ci(r.median_ci, f)}", share, p)
+        cells = {"sets": [r.label, r.better, ms[0], fmt_num(r.median_a, f), ms[1],
+                          fmt_num(r.median_b, f)],
+                 "diffs": [r.label, f"{fmt_num(r.delta, f, True)} {fmt_ci(r.ci, f)}",
+                           f"{fmt_num(r.median_delta, f, True)} {fmt_ci(r.median_ci, f)}",
+                           share, p]}
+        cells["all"] = cells["sets"] + cells["diffs"][1:]
+        table.add_row(*cells[part])
     return table
+
+
+def metrics_tables(rows: list[Row], label_a: str, label_b: str, title: str,
+                   width: int) -> list[Table]:
+    if width >= FULL_TABLE_COLUMNS:
+        return [metrics_table(rows, label_a, label_b, title)]
+    return [metrics_table(rows, label_a, label_b, f"{title}: the sets", "sets"),
+            metrics_table(rows, label_a, label_b, f"{title}: B - A", "diffs")]
 
 
 def seed_table(cmp: Comparison) -> Table:
@@ -74,6 +98,51 @@ def seed_table(cmp: Comparison) -> Table:
         ea, eb = cmp.metrics_a[s]["mean_err"], cmp.metrics_b[s]["mean_err"]
         table.add_row(str(s), cmp.shapes[s], f"{ea:.2f}", f"{eb:.2f}", f"{eb - ea:+.2f}")
     return table
+
+
+def speed_table(cmp: Comparison) -> Table:
+    """The paired mean-error difference per equal-count bin of the target's peak speed: where
+    B's gain over A grows, vanishes or reverses."""
+    table = Table(title="mean error by the target's peak speed (equal-count bins)",
+                  title_justify="left")
+    for name in ("peak speed (m/s)", "n", f"{cmp.label_a} mean", f"{cmp.label_b} mean",
+                 "mean diff (B - A) [95% CI]", "median diff [95% CI]", "B better", "shown"):
+        table.add_column(name, justify="right")
+    for lo, hi, rows in cmp.by_speed:
+        r = next(r for r in rows if r.key == "mean_err")
+        shown = "yes" if shown_ci(r.ci) and r.n_pairs >= MIN_PAIRS_FOR_CLAIM else "no"
+        table.add_row(f"{lo:.2f}-{hi:.2f}", str(r.n_pairs), f"{r.mean_a:.2f}", f"{r.mean_b:.2f}",
+                      f"{r.delta:+.2f} {fmt_ci(r.ci, '.2f')}",
+                      f"{r.median_delta:+.2f} {fmt_ci(r.median_ci, '.2f')}",
+                      f"{100 * r.share_improved:.0f}%", shown)
+    return table
+
+
+def oracle_lines(args: Args, cmp: Comparison) -> list[str]:
+    """The share of the achievable gain over A that B captures, (A - B) / (A - oracle), on the
+    seeds all three sets share (the oracle's failures charged like anyone's)."""
+    from ..metrics.pairing import charged
+    from ..metrics.stats import rollout_metrics, share_captured
+
+    oracle = load_set(args.oracle, args.root)
+    check_compatible(oracle, {s: cmp.pairing.scored[cmp.label_a][s] for s in cmp.seeds},
+                     f"oracle ({args.oracle})", f"{args.label_a} ({args.prefix_a})")
+    seeds = [s for s in cmp.seeds if s in oracle]
+    if len(seeds) < 2:
+        raise UserError(f"--oracle {args.oracle} shares {len(seeds)} seeds with the compared "
+                        "sets; it needs the same seeds")
+    om = {s: rollout_metrics(charged(oracle[s])[0], args.settle_time, args.band_cm,
+                             args.tight_band_cm) for s in seeds}
+    lines = [f"share of the achievable gain captured, {args.label_b} between {args.label_a} "
+             f"and the oracle ({args.oracle}, n={len(seeds)} seeds; 1 = the oracle's error, "
+             "0 = no gain over A):"]
+    for key, name in (("mean_err", "mean error"), ("settled_err", "settled mean error")):
+        col = [np.array([m[s][key] for s in seeds]) for m in (cmp.metrics_a, cmp.metrics_b, om)]
+        share, ci = share_captured(*col, n_boot=args.bootstrap, seed=args.ci_seed)
+        lines.append(f"{name}: {args.label_a} {col[0].mean():.2f}, {args.label_b} "
+                     f"{col[1].mean():.2f}, oracle {col[2].mean():.2f} cm; captured "
+                     f"{100 * share:.0f}% [{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]")
+    return lines
 
 
 @dataclass
@@ -118,6 +187,10 @@ class Args:
     """Seed of the bootstrap random generator (makes CIs reproducible)."""
     markdown: bool = False
     """Print the tables as GitHub markdown (what the results tables are pasted from)."""
+    oracle: str | None = None
+    """Rollout prefix of a ceiling (the ILC oracle) on the same seeds: also print the share of
+    the achievable gain that B captures, (A - B) / (A - oracle), for the mean and the settled
+    error, with 95% bootstrap CIs."""
 
 
 def _print_tables(console: Console, tables: list[Table], markdown: bool) -> None:
@@ -200,23 +273,29 @@ def run_compare(args: Args, console: Console) -> None:
                   f"B = {args.label_b} ({args.root}/{args.prefix_b})")
     caption = (f"{seed_set_title(cmp.seeds)}; settle {args.settle_time:g} s; CIs: paired "
                f"bootstrap over seeds, {args.bootstrap} resamples, seed {args.ci_seed}")
-    tables = [metrics_table(cmp.rows, args.label_a, args.label_b, "all seeds")]
+    width = 100_000 if args.markdown else console.width
+    tables = metrics_tables(cmp.rows, args.label_a, args.label_b, "all seeds", width)
     tables[0].caption = caption
     if args.breakdown:
         tables.append(seed_table(cmp))
         for shape, rows in cmp.by_shape.items():
             n = sum(1 for s in cmp.seeds if cmp.shapes[s] == shape)
-            tables.append(metrics_table(rows, args.label_a, args.label_b, f"shape {shape} (n={n})"))
+            tables += metrics_tables(rows, args.label_a, args.label_b, f"shape {shape} (n={n})",
+                                     width)
+        tables.append(speed_table(cmp))
     _print_tables(console, tables, args.markdown)
     bullet = "- " if args.markdown else "  "
     _say(console, f"\nclaims, {args.label_b} vs {args.label_a} (shown = the 95% CI of the paired "
                   "difference excludes 0):")
     for row in cmp.rows:
         _say(console, bullet + claim(row, args.label_b))
+    if args.oracle:
+        for line in oracle_lines(args, cmp):
+            _say(console, bullet + line)
     if args.plot:
         scored = cmp.pairing.scored
-        path = plot(cmp, scored[cmp.label_a], scored[cmp.label_b], list(args.plot_seeds), args.band_cm, args.plot, args.settle_time,
-                    args.tight_band_cm)
+        path = plot(cmp, scored[cmp.label_a], scored[cmp.label_b], list(args.plot_seeds),
+                    args.band_cm, args.plot, args.settle_time, args.tight_band_cm)
         _say(console, f"wrote {path}")
 
 
