@@ -40,15 +40,15 @@ class ILCConfig:
 
     gain: float = field(default=0.5, metadata={"range": (0.0, 2.0)})
     """Share of the (shifted, smoothed) error added to the lead per iteration."""
-    shift: int = field(default=3, metadata={"range": (0, 50)})
+    shift: int = field(default=8, metadata={"range": (0, 50)})
     """The lead of step k is corrected by the error this many steps later."""
     taps: int = field(default=5, metadata={"range": (1, 51)})
     """Width (steps) of the centred moving average applied to the error."""
     iterations: int = field(default=20, metadata={"range": (0, 500)})
     """Replays after the first (each one episode per trajectory)."""
-    init: str = "analytic"
-    """The first replay's lead: analytic (the analytic lead), zero (classical) or policy (a
-    model's, given with --model)."""
+    init: str = "policy"
+    """The first replay's lead: policy (a model's, --model, default the headline model),
+    analytic (the analytic lead) or zero (classical)."""
 
     def __post_init__(self):
         check_typed_fields(self, "ilc.")

@@ -622,9 +622,9 @@ def test_a_narrow_terminal_gets_the_table_in_two_halves_nothing_truncated():
     a = {s: offset_rollout(0.03, seed=s) for s in range(12)}
     b = {s: offset_rollout(0.01, seed=s) for s in range(12)}
     cmp = metrics.compare(a, b, n_boot=100)
-    assert [len(t.columns) for t in metrics_cli.metrics_tables(cmp.rows, "A", "B", "t", 240)] == [10]
+    assert [len(t.columns) for t in metrics_cli.metrics_tables(cmp.rows, "A", "B", "t", 240)] == [11]
     halves = metrics_cli.metrics_tables(cmp.rows, "Classical", "RL+Lead", "t", 100)
-    assert [len(t.columns) for t in halves] == [6, 5]
+    assert [len(t.columns) for t in halves] == [6, 6]
     import io
 
     out = io.StringIO()

@@ -48,9 +48,9 @@ MAX_BOOTSTRAP = 100_000
 MAX_SPEED_BINS = 100
 
 
-# The whole table is about 210 columns wide; below this a terminal gets it in two halves
+# The whole table is about 225 columns wide; below this a terminal gets it in two halves
 # (the sets, then the paired differences) instead of truncated names and p-values.
-FULL_TABLE_COLUMNS = 215
+FULL_TABLE_COLUMNS = 228
 
 
 def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str,
@@ -60,7 +60,7 @@ def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str,
     names = {"sets": ("Metric", "better", f"{label_a} mean ± std", f"{label_a} median",
                       f"{label_b} mean ± std", f"{label_b} median"),
              "diffs": ("Metric", "mean diff (B - A) [95% CI]", "median diff (B - A) [95% CI]",
-                       "B better", "p (Wilcoxon)")}
+                       "B better", "p (Wilcoxon)", "p (Holm)")}
     names["all"] = names["sets"] + names["diffs"][1:]
     table = Table(title=title, title_justify="left")
     for name in names[part]:
@@ -71,11 +71,12 @@ def metrics_table(rows: list[Row], label_a: str, label_b: str, title: str,
               for m, s in ((r.mean_a, r.std_a), (r.mean_b, r.std_b))]
         share = f"{100 * r.share_improved:.0f}%" if r.n_pairs else "n/a"
         p = "n/a" if not np.isfinite(r.p) else f"{r.p:.3g}"
+        p_holm = "n/a" if not np.isfinite(r.p_holm) else f"{r.p_holm:.3g}"
         cells = {"sets": [r.label, r.better, ms[0], fmt_num(r.median_a, f), ms[1],
                           fmt_num(r.median_b, f)],
                  "diffs": [r.label, f"{fmt_num(r.delta, f, True)} {fmt_ci(r.ci, f)}",
                            f"{fmt_num(r.median_delta, f, True)} {fmt_ci(r.median_ci, f)}",
-                           share, p]}
+                           share, p, p_holm]}
         cells["all"] = cells["sets"] + cells["diffs"][1:]
         table.add_row(*cells[part])
     return table
