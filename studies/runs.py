@@ -5,6 +5,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py baselines                                 # -> results/runs/baselines.json
     uv run studies/runs.py report --study v5                         # spread table (markdown)
     uv run studies/runs.py choose --study v5 [--archive-as indep_v5 --runs sweeps/v5/runs]
+    uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
@@ -29,7 +30,7 @@ from typing import Literal
 import numpy as np
 import tyro
 
-from panda_lead.errors import UserError, check_plain_name, exit_on_user_error
+from panda_lead.errors import UserError, check_plain_name, exit_on_user_error, parse_cli
 
 RUNS_DIR = Path("results/runs")
 TEST = "0-999"
@@ -38,7 +39,8 @@ KEYS = ("mean_err", "settled_err", "jerk_rms")
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose"]]
+    command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose",
+                                          "compare"]]
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
@@ -48,6 +50,8 @@ class Args:
     against: str = "analytic"
     """report: the baseline each run is compared with (classical, analytic, classical_500hz,
     analytic_500hz)."""
+    against_study: str | None = None
+    """compare: the study --study is compared with (differences are study - against-study)."""
     archive_as: str | None = None
     """choose: archive the chosen run's best model under this name (needs its run folder)."""
     force: bool = False
@@ -148,6 +152,54 @@ def load_study(study: str) -> list[dict]:
     return sorted((json.loads(f.read_text()) for f in files), key=lambda s: s["seed"])
 
 
+def load_baseline(name: str) -> dict:
+    path = RUNS_DIR / "baselines.json"
+    if not path.is_file():
+        raise UserError(f"no {path} (run `uv run studies/runs.py baselines` first)")
+    base = json.loads(path.read_text())
+    if name not in base or not isinstance(base[name], dict):
+        raise UserError(f"no baseline {name!r} in {path}")
+    return base[name]
+
+
+def compare_studies(args: Args) -> None:
+    """Two configurations, each over its training seeds, paired by test trajectory. The CI is a
+    two-level bootstrap: each resample draws the training seeds of both studies and the test
+    trajectories with replacement, so it carries the spread across training seeds as well as
+    across trajectories (a CI over trajectories alone would call a lucky seed a finding)."""
+    if not args.against_study:
+        raise UserError("compare needs --against-study NAME")
+    a, b = load_study(args.against_study), load_study(args.study)
+    rng = np.random.default_rng(0)
+    lines = []
+    for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
+                      ("jerk_rms", "jerk RMS")):
+        ma = np.array([s["test"][key] for s in a])  # (seeds, trajectories)
+        mb = np.array([s["test"][key] for s in b])
+        d = mb.mean(axis=0) - ma.mean(axis=0)
+        n = d.size
+        boots = np.empty(args.bootstrap)
+        for i in range(args.bootstrap):
+            t = rng.integers(0, n, n)
+            sa, sb = rng.integers(0, len(a), len(a)), rng.integers(0, len(b), len(b))
+            boots[i] = mb[sb][:, t].mean() - ma[sa][:, t].mean()
+        lo, hi = np.percentile(boots, [2.5, 97.5])
+        verdict = "shown" if lo > 0 or hi < 0 else "not shown"
+        lines.append(f"| {name} | {ma.mean():.3f} | {mb.mean():.3f} | {d.mean():+.3f} "
+                     f"[{lo:+.3f}, {hi:+.3f}] {verdict} | {np.median(d):+.3f} | "
+                     f"{100 * np.mean(d < 0):.0f}% |")
+    print(f"`{args.study}` ({len(b)} seeds: {', '.join(str(s['seed']) for s in b)}) minus "
+          f"`{args.against_study}` ({len(a)} seeds: {', '.join(str(s['seed']) for s in a)}), "
+          f"each the mean over its seeds per test trajectory ({TEST}); 95% CI: two-level "
+          f"bootstrap over training seeds and trajectories ({args.bootstrap} resamples). "
+          f"`uv run studies/runs.py compare --study {args.study} --against-study "
+          f"{args.against_study}`\n")
+    print(f"| metric | {args.against_study} | {args.study} | mean diff [95% CI] | median diff "
+          f"| {args.study} better on |")
+    print("|---|---|---|---|---|---|")
+    print("\n".join(lines))
+
+
 def choose_run(runs: list[dict]) -> dict:
     """The stated rule: lowest best evaluation error (to 0.01 cm), ties to the lower seed."""
     return min(runs, key=lambda s: (round(s["best"]["mean_error_cm"], 2), s["seed"]))
@@ -157,7 +209,7 @@ def report(args: Args) -> None:
     from panda_lead.metrics import bootstrap_ci, diff_text
 
     runs = load_study(args.study)
-    base = json.loads((RUNS_DIR / "baselines.json").read_text())[args.against]
+    base = load_baseline(args.against)
     chosen = choose_run(runs)
     print(f"Study `{args.study}`: {len(runs)} training seeds, each its best evaluation-set model "
           f"on test seeds {TEST} (n=1000), 5 s episodes; differences are run - {args.against}, "
@@ -208,8 +260,8 @@ def choose(args: Args) -> None:
 @exit_on_user_error
 def main(args: Args) -> None:
     {"summarize": summarize, "baselines": baselines, "report": report,
-     "choose": choose}[args.command](args)
+     "choose": choose, "compare": compare_studies}[args.command](args)
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()
