@@ -287,15 +287,18 @@ def test_a_sweep_name_is_a_plain_name(tmp_path):
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
 
 
+SLOW = pytest.mark.slow  # the same check on more inputs: each case is a sweep.py process
+
+
 @pytest.mark.parametrize("train_args,words", [
-    ('--n-envs "4', ["No closing quotation"]),
+    pytest.param('--n-envs "4', ["No closing quotation"], marks=SLOW),
     ("--n-envs x", ["--n-envs: invalid literal for int()", "(see train.py --help)"]),
-    ("--n-envs 0", ["--n-envs must be an integer >= 1"]),
-    ("--n-envs 1000000000", ["GiB of memory"]),
-    ("--env.w-alive -1e308", ["w_alive must be within"]),
-    ("--env.obs-features ee_pso", ["unknown observation feature"]),
+    pytest.param("--n-envs 0", ["--n-envs must be an integer >= 1"], marks=SLOW),
+    pytest.param("--n-envs 1000000000", ["GiB of memory"], marks=SLOW),
+    pytest.param("--env.w-alive -1e308", ["w_alive must be within"], marks=SLOW),
+    pytest.param("--env.obs-features ee_pso", ["unknown observation feature"], marks=SLOW),
     ("--timesteps 5", ["may not set --timesteps"]),
-    ("--archive x", ["may not set --archive"]),
+    pytest.param("--archive x", ["may not set --archive"], marks=SLOW),
 ])
 def test_sweep_train_args_are_checked_before_the_study_starts(tmp_path, train_args, words):
     """They were parsed only inside a trial: a typo cost a study, a database and a traceback

@@ -14,6 +14,10 @@ from pathlib import Path
 
 import pytest
 
+# Multi-process integration (a PostgreSQL server, worker kills, two workers racing for grid
+# points): minutes on 2 cores, so in the slow tier (`uv run pytest -m slow`).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 TINY = "--n-envs 2 --vec-env dummy --n-steps 64 --batch-size 64 --n-epochs 1 --eval-steps 50"
 
