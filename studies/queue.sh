@@ -1,21 +1,35 @@
 #!/usr/bin/env bash
-# The training runs behind docs/results.md and docs/questions.md, one after another, as
-# Optuna grid studies (`bash studies/queue.sh`, about 55 minutes on 2 cores: 26 runs of 1M
-# steps, about 2 minutes each). Each study's runs
-# are under sweeps/<name>/runs/; `uv run studies/sweep.py --report NAME` summarises one and
-# `--archive NAME --archive-as X` archives its best seed, chosen on the evaluation set.
+# The training runs behind the Results, one after another (`bash studies/queue.sh`). Each
+# study's runs land under sweeps/<name>/runs/; `bash studies/results.sh` turns them into the
+# committed summaries (results/runs/) and every table and figure.
+#
+# At the presets' budget (5M steps, ~27 minutes per run on one of 2 cores):
+#   v5        the headline configuration, 5 seeds
+#   v5_joint  v5 + the joint state (29-D), v5's reward: what the joint state alone buys
+#   climb     v5_stack (v5 + the last 3 observations): 3 seeds
+#   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result)
+# The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
+# curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl}
-T=${TIMESTEPS:-1000000}
+T=${TIMESTEPS:-5000000}
 sweep() { uv run studies/sweep.py --timesteps "$T" "$@"; }
-sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
-sweep --name noisy --presets v5 --seeds 1 2 3 \
-  --train-args="--env.obs-noise ee_pos 0.01 target_pos 0.01 ee_vel 0.1 target_vel 0.1 target_acc 1.0"
-sweep --name delayed --presets v5 --seeds 1 2 3 \
-  --train-args="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
-sweep --name collision_v6 --presets v6 --seeds 1 2 3
-sweep --name collision_v7 --presets v7 --seeds 1 2 3
-sweep --name curriculum --presets v5 --seeds 1 2 3 --train-args="--curriculum-steps 500000"
-sweep --name joint --presets joint --seeds 1 2 3
-sweep --name indep_v9 --presets v9 --seeds 1 2 3
+if [ "${1:-main}" = main ]; then
+  sweep --name v5 --presets v5 --seeds 1 2 3 4 5
+  sweep --name v5_joint --presets v5 --seeds 1 2 3 4 5 \
+    --train-args="--env.obs-features ee_pos ee_vel target_pos target_vel target_acc joint_pos joint_vel"
+  sweep --name climb --presets v5_stack --seeds 1 2 3
+  sweep --name ikfree --presets ikfree --seeds 1
+else
+  sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
+  sweep --name noisy --presets v5 --seeds 1 2 3 \
+    --train-args="--env.obs-noise ee_pos 0.01 target_pos 0.01 ee_vel 0.1 target_vel 0.1 target_acc 1.0"
+  sweep --name delayed --presets v5 --seeds 1 2 3 \
+    --train-args="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
+  sweep --name collision_v6 --presets v6 --seeds 1 2 3
+  sweep --name collision_v7 --presets v7 --seeds 1 2 3
+  sweep --name curriculum --presets v5 --seeds 1 2 3 --train-args="--curriculum-steps 500000"
+  sweep --name joint --presets joint --seeds 1 2 3
+  sweep --name indep_v9 --presets v9 --seeds 1 2 3
+fi

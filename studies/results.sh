@@ -1,54 +1,50 @@
 #!/usr/bin/env bash
-# Everything in results/ that comes from the runs of studies/queue.sh, in one command:
-# every trained seed on the 1,000 test seeds, seed spreads, study reports, archiving the best
-# seed of each study (chosen on the evaluation set), the noise and latency studies.
-# `bash studies/results.sh` after `bash studies/queue.sh` (about 30 minutes on 2 cores). Every
-# seed of indep_v5 plays the 1,000 test seeds; the other studies' seeds the first 500.
+# Every table and figure of the README's Results from the runs of studies/queue.sh, in one
+# command: `bash studies/results.sh` (about an hour on 2 cores; each step is skipped when its
+# output exists). What only reads committed files (results/runs/) runs from a fresh clone:
+# `bash studies/results.sh tables`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl}
-SEEDS=${SEEDS:-0-999}
-[ -d rollouts/ikpd ] || uv run ikpd.py --seeds "$SEEDS" --prefix ikpd
-[ -d rollouts/analytic ] || uv run ikpd.py --seeds "$SEEDS" --prefix analytic --controller analytic
-for study in indep_v5 indep_v9 noisy delayed curriculum joint collision_v6 collision_v7; do
-  [ -d "sweeps/$study/runs" ] || continue
-  prefixes=()
-  for run in sweeps/"$study"/runs/*/; do
-    seed=$(basename "$run" | awk -F__ '{print $2}')
-    prefix="${study}_s${seed}"
-    seeds=$SEEDS; [ "$study" = indep_v5 ] || seeds=${STUDY_SEEDS:-0-499}
-    [ -d "rollouts/$prefix" ] || uv run eval.py --seeds "$seeds" --prefix "$prefix" \
-      --model "$run/best_model.zip" > /dev/null
-    prefixes+=("$prefix")
+runs() { uv run studies/runs.py "$@"; }
+if [ "${1:-all}" = all ]; then
+  # 1. One committed summary per training run (config, curve, best model's hash, its metrics
+  #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
+  for study in v5 v5_joint climb; do
+    [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
-  uv run studies/spread.py --prefixes "${prefixes[@]}" --runs sweeps/"$study"/runs/*/ \
-    > "results/spread_$study.md"
-  uv run studies/sweep.py --report "$study" > "results/sweep_$study.txt"
-  [ -f "archive/$study.zip" ] || uv run studies/sweep.py --archive "$study" --archive-as "$study"
+  [ -f results/runs/baselines.json ] || runs baselines
+  # 2. The archived headline model: the v5 run with the lowest evaluation-set error.
+  [ -f archive/v5_5m.zip ] || runs choose --study v5 --archive-as v5_5m --runs sweeps/v5/runs
+  # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory) on the first 200.
+  [ -d rollouts/classical ] || uv run ikpd.py --seeds 0-999 --prefix classical
+  [ -d rollouts/analytic ] || uv run ikpd.py --seeds 0-999 --prefix analytic --controller analytic
+  [ -d rollouts/v5_5m ] || uv run eval.py --seeds 0-999 --prefix v5_5m --model archive/v5_5m.zip
+  [ -d rollouts/indep_v5 ] || uv run eval.py --seeds 0-999 --prefix indep_v5 --model archive/indep_v5.zip
+  [ -d rollouts/ilc ] || uv run ikpd.py --controller ilc --seeds 0-199 --prefix ilc
+  # 4. The paired tables and the headline figure.
+  for pair in "classical analytic" "classical v5_5m" "analytic v5_5m" "indep_v5 v5_5m"; do
+    set -- $pair
+    uv run metrics.py --prefix-a "$1" --prefix-b "$2" --breakdown --markdown \
+      | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
+  done
+  uv run metrics.py --prefix-a analytic --prefix-b v5_5m --oracle ilc --markdown \
+    > results/v5_5m_vs_analytic_with_oracle.md
+  uv run metrics.py --headline classical analytic v5_5m ilc --force \
+    --labels Classical Analytic "RL lead (v5_5m)" "ILC oracle" --plot results/headline.png
+  # 5. The side studies under the evaluation harness (levels replace a model's own settings).
+  uv run studies/robustness.py --question delay --force \
+    --models archive/indep_v5.zip archive/delayed.zip --seeds 0-499
+  uv run studies/robustness.py --question noise --force \
+    --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
+  uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v6.zip \
+    archive/collision_v7.zip archive/joint.zip --subset results/collision_seeds.txt
+fi
+# From committed files only: the spread tables and the paired study comparisons.
+for study in v5 v5_joint climb; do
+  [ -d "results/runs/$study" ] && runs report --study "$study" > "results/spread_$study.md"
 done
-[ -f results/noise.md ] || uv run studies/robustness.py --question noise --models archive/indep_v5.zip archive/noisy.zip \
-  --seeds "${ROBUST_SEEDS:-0-499}"
-[ -f results/delay.md ] || uv run studies/robustness.py --question delay --models archive/indep_v5.zip archive/delayed.zip \
-  --seeds "${ROBUST_SEEDS:-0-499}"
-# The collision-prone subset is found once (5M classical steps) and read back afterwards.
-subset=(); [ -f results/collision_seeds.txt ] && subset=(--subset results/collision_seeds.txt)
-uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v6.zip \
-  archive/collision_v7.zip archive/joint.zip "${subset[@]}"
-# Best seed of each study (chosen on the evaluation set) against another: the joint-space
-# residual and the curriculum against the Cartesian lead, the lead against the analytic lead.
-best_set() {  # the rollout set of a study's archived best seed (or a baseline set as it is)
-  case "$1" in ikpd|analytic) echo "$1"; return;; esac
-  [ -d "rollouts/$1_best" ] || uv run eval.py --seeds "$SEEDS" --prefix "$1_best" \
-    --model "archive/$1.zip" > /dev/null
-  echo "$1_best"
-}
-# (noisy and delayed are compared level by level in noise.md and delay.md: their sidecars
-# carry their training noise and delays, so an eval.py rollout of them is in those conditions.)
-for pair in "indep_v5 joint" "indep_v5 curriculum" "analytic indep_v5"; do
-  set -- $pair
-  a=$(best_set "$1"); b=$(best_set "$2")
-  uv run metrics.py --prefix-a "$a" --prefix-b "$b" --label-a "$1" --label-b "$2" --breakdown \
-    --markdown | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
-done
-uv run metrics.py --headline ikpd analytic "$(best_set indep_v5)" \
-  --labels Classical Analytic "RL lead (indep_v5)" --plot results/headline_indep_v5.png
+runs rates --study v5 > results/rates_500hz.md
+runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
+[ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
+exit 0

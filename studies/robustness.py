@@ -1,7 +1,7 @@
 """Robustness study: tracking error and jerk against observation noise or latency, per controller.
 
-    uv run studies/robustness.py --question noise --models archive/best.zip archive/noisy.zip
-    uv run studies/robustness.py --question delay --models archive/best.zip archive/delayed.zip
+    uv run studies/robustness.py --question noise --models archive/indep_v5.zip archive/noisy.zip
+    uv run studies/robustness.py --question delay --models archive/indep_v5.zip archive/delayed.zip
 
 Every controller (classical, the analytic lead fed the same noisy or late observations, and each
 model, with its own sidecar's env) plays the test seeds at each level, as one batch per

@@ -6,6 +6,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py report --study v5                         # spread table (markdown)
     uv run studies/runs.py choose --study v5 [--archive-as indep_v5 --runs sweeps/v5/runs]
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
+    uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
@@ -40,7 +41,7 @@ KEYS = ("mean_err", "settled_err", "jerk_rms")
 @dataclass
 class Args:
     command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose",
-                                          "compare"]]
+                                          "compare", "rates"]]
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
@@ -200,6 +201,39 @@ def compare_studies(args: Args) -> None:
     print("\n".join(lines))
 
 
+def rates(args: Args) -> None:
+    """Apples to apples: the classical controller and the analytic lead with the IK at 100 Hz
+    (every control step, as the learned lead) and at 500 Hz (every physics substep, as the
+    reference work's IK+PD), each paired with the other rate and with the study's chosen
+    learned lead (100 Hz), per test trajectory."""
+    from panda_lead.metrics import bootstrap_ci, diff_text
+
+    base = {k: load_baseline(k) for k in ("classical", "classical_500hz", "analytic",
+                                          "analytic_500hz")}
+    tau = json.loads((RUNS_DIR / "baselines.json").read_text()).get("analytic_500hz_tau")
+    learned = choose_run(load_study(args.study))
+    print(f"Baselines with the IK at 100 Hz and at 500 Hz (analytic lead's tau re-tuned at 500 Hz "
+          f"on the tuning seeds: {tau} s) against the learned lead (`{args.study}` seed "
+          f"{learned['seed']}, IK at 100 Hz), test seeds {TEST} (n=1000), paired by trajectory, "
+          "95% bootstrap CIs. `uv run studies/runs.py rates`\n")
+    print("| controller | mean (cm) | settled (cm) | minus the same at 100 Hz | learned lead "
+          "minus it | learned better on |")
+    print("|---|---|---|---|---|---|")
+    mine = np.array(learned["test"]["mean_err"])
+    for name in base:
+        m = np.array(base[name]["mean_err"])
+        settled = np.mean(base[name]["settled_err"])
+        if name.endswith("_500hz"):
+            d = m - np.array(base[name.removesuffix("_500hz")]["mean_err"])
+            vs100 = diff_text(d.mean(), bootstrap_ci(d, n_boot=args.bootstrap))
+        else:
+            vs100 = ""
+        dl = mine - m
+        print(f"| {name} | {m.mean():.2f} | {settled:.2f} | {vs100} | "
+              f"{diff_text(dl.mean(), bootstrap_ci(dl, n_boot=args.bootstrap))} | "
+              f"{100 * np.mean(dl < 0):.0f}% |")
+
+
 def choose_run(runs: list[dict]) -> dict:
     """The stated rule: lowest best evaluation error (to 0.01 cm), ties to the lower seed."""
     return min(runs, key=lambda s: (round(s["best"]["mean_error_cm"], 2), s["seed"]))
@@ -260,7 +294,7 @@ def choose(args: Args) -> None:
 @exit_on_user_error
 def main(args: Args) -> None:
     {"summarize": summarize, "baselines": baselines, "report": report,
-     "choose": choose, "compare": compare_studies}[args.command](args)
+     "choose": choose, "compare": compare_studies, "rates": rates}[args.command](args)
 
 
 if __name__ == "__main__":
