@@ -52,9 +52,11 @@ def action_dim(action: str) -> int:
 
 def check_features(features) -> tuple[str, ...]:
     """Validate a feature selection and put it in the canonical order."""
-    if not isinstance(features, (str, list, tuple)):  # a hand-edited sidecar: 5, null, {...}
-        raise UserError(f"obs_features must be a list of feature names, not {features!r}")
-    features = (features,) if isinstance(features, str) else tuple(features)
+    try:  # a hand-edited sidecar may hold 5 or null here
+        features = (features,) if isinstance(features, str) else tuple(features)
+    except TypeError:
+        raise UserError(f"obs_features must be a list of feature names, not {features!r}"
+                        ) from None
     for f in features:
         if not isinstance(f, str):
             raise UserError(f"obs_features must be a list of feature names, not {f!r} in it")
