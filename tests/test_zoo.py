@@ -1,9 +1,12 @@
 """hyperparams/ppo.yml: RL Baselines3 Zoo trains PandaLead-v0 with train.py's defaults."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -15,8 +18,11 @@ def test_zoo_hyperparams_are_train_py_defaults():
 
     zoo = yaml.safe_load(CONF.read_text())["PandaLead-v0"]
     args = training.TrainConfig()
-    assert zoo["n_envs"] == args.n_envs and zoo["n_timesteps"] == 5_000_000
-    for key in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda",
+    # Fewer envs than train.py's one batch of 32 (RL Zoo makes a process or a Python env per
+    # env: 32 cost minutes and gigabytes on 2 cores), the same steps per rollout.
+    assert zoo["n_envs"] * zoo["n_steps"] == args.n_envs * args.n_steps
+    assert zoo["n_envs"] <= 8 and zoo["n_timesteps"] == 5_000_000
+    for key in ("batch_size", "n_epochs", "gamma", "gae_lambda",
                 "learning_rate", "clip_range", "ent_coef"):
         assert zoo[key] == getattr(args, key), key
     # The policy string is evaluated by RL Zoo with torch.nn in scope.
@@ -28,17 +34,22 @@ def test_zoo_hyperparams_are_train_py_defaults():
     assert zoo["normalize"] is False and zoo["env_kwargs"] == {}
 
 
-def test_rl_zoo_trains_and_saves_a_model(tmp_path):
+@pytest.fixture(scope="module")
+def zoo_run(tmp_path_factory):
     """RL Zoo's own entry point, as a user runs it from the repo root, on a tiny budget."""
-    logs = tmp_path / "logs"
+    logs = tmp_path_factory.mktemp("zoo") / "logs"
     out = subprocess.run(
         [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "PandaLead-v0",
-         "--gym-packages", "env", "-conf", str(CONF), "-n", "2048", "-f", str(logs),
+         "--gym-packages", "panda_lead", "-conf", str(CONF), "-n", "2048", "-f", str(logs),
          "--hyperparams", "n_envs:2", "n_steps:64", "batch_size:64", "n_epochs:1",
          "--eval-freq", "-1", "--seed", "0", "--vec-env", "dummy", "--device", "cpu"],
-        cwd=ROOT, capture_output=True, text=True)
+        cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
-    run = logs / "ppo" / "PandaLead-v0_1"
+    return logs / "ppo" / "PandaLead-v0_1"
+
+
+def test_rl_zoo_trains_and_saves_a_model(zoo_run):
+    run = zoo_run
     assert (run / "PandaLead-v0.zip").is_file(), sorted(p.name for p in run.iterdir())
     assert (run / "PandaLead-v0" / "config.yml").is_file()
 
@@ -48,3 +59,24 @@ def test_rl_zoo_trains_and_saves_a_model(tmp_path):
     assert model.num_timesteps == 2048
     assert model.n_steps == 64 and model.n_envs == 2  # the overrides reached the model
     assert model.policy.log_std.detach().mean().item() < -0.5  # log_std_init -1 (+ 16 updates)
+
+
+def test_an_rl_zoo_model_is_adopted_and_evaluated_by_eval_py(zoo_run, tmp_path):
+    """The third-party path end to end: RL Zoo trains, `eval.py --adopt` makes it a bound,
+    carded archive entry, and eval.py plays it like any archived model."""
+    def run(*args):
+        return subprocess.run([sys.executable, str(ROOT / "eval.py"), *map(str, args)],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=900)
+
+    out = run("--adopt", zoo_run / "PandaLead-v0.zip", "--name", "zoo")
+    assert out.returncode == 0, out.stderr[-3000:]
+    for ext in ("zip", "json", "md"):
+        assert (tmp_path / "archive" / f"zoo.{ext}").is_file()
+    out = run("--seeds", "0-1", "--prefix", "zoo", "--model", "archive/zoo.zip",
+              "--duration", "0.5")
+    assert out.returncode == 0, out.stderr[-3000:]
+    files = sorted((tmp_path / "rollouts" / "zoo").glob("*.npz"))
+    assert len(files) == 2
+    meta = json.loads(str(np.load(files[0])["meta"]))
+    side = json.loads((tmp_path / "archive" / "zoo.json").read_text())
+    assert meta["controller"] == "policy" and meta["model_sha256"] == side["model_sha256"]

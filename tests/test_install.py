@@ -1,0 +1,92 @@
+"""The project as a third party gets it: installed (not editable) into a fresh virtual
+environment from the lock file, offline from uv's cache, then used from a folder outside the
+repository with no PYTHONPATH: the env by id, a model card's snippet, 2,048 steps of SB3."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    """The python of a fresh venv holding the project as a wheel would install it."""
+    uv = shutil.which("uv")
+    assert uv, "uv is needed to install the project (pip install uv)"
+    tmp = tmp_path_factory.mktemp("install")
+    copy = tmp / "project"  # the working tree's files as git sees them, nothing else
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT,
+                           capture_output=True, check=True).stdout.decode().split("\0")
+    for name in filter(None, files):
+        src = ROOT / name
+        if src.is_file():
+            (copy / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, copy / name)
+    venv = tmp / "venv"
+    env = {**os.environ, "UV_PROJECT_ENVIRONMENT": str(venv)}
+    env.pop("VIRTUAL_ENV", None)
+    out = subprocess.run([uv, "sync", "--frozen", "--offline", "--no-dev", "--no-editable"],
+                         cwd=copy, env=env, capture_output=True, text=True, timeout=1800)
+    assert out.returncode == 0, out.stderr[-3000:]
+    shutil.rmtree(copy)  # nothing of the source tree is left to import from
+    return venv / "bin" / "python"
+
+
+def run_outside(python: Path, code: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    return subprocess.run([str(python), "-c", code], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=900)
+
+
+def test_the_installed_package_is_not_the_checkout(installed, tmp_path):
+    out = run_outside(installed, "import panda_lead; print(panda_lead.__file__)", tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "site-packages" in out.stdout and str(ROOT) not in out.stdout
+
+
+def test_the_env_is_made_by_id_from_any_folder(installed, tmp_path):
+    code = """
+import gymnasium as gym
+e = gym.make("panda_lead:PandaLead-v0")          # imports the package itself
+obs, info = e.reset(seed=0)
+obs, r, term, trunc, info = e.step(e.action_space.sample())
+import panda_lead                                # registers both ids
+for env_id in ("PandaLead-v0", "panda_lead/PandaLead-v0"):
+    gym.make(env_id).reset(seed=0)
+print("ok", obs.shape, info["distance"] > 0)
+"""
+    out = run_outside(installed, code, tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "ok (15,) True"
+
+
+def test_a_model_cards_snippet_runs_from_any_folder(installed, tmp_path):
+    card = (ROOT / "archive" / "v5_5m.md").read_text()
+    snippet = re.search(r"```python\n(.*?)```", card, re.S).group(1)
+    promised = re.search(r"# card: ([0-9.]+) cm", snippet).group(1)
+    out = run_outside(installed, snippet, tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == f"test seed 0: mean error {promised} cm"
+
+
+def test_sb3_trains_on_the_installed_env(installed, tmp_path):
+    code = """
+import gymnasium as gym, torch
+from stable_baselines3 import PPO
+import panda_lead
+torch.set_num_threads(1)  # stock SB3 on 2 cores is several times slower without it
+model = PPO("MlpPolicy", gym.make("PandaLead-v0"), n_steps=1024, batch_size=256, n_epochs=1,
+            device="cpu", seed=0)
+model.learn(2048)
+print("steps", model.num_timesteps)
+"""
+    out = run_outside(installed, code, tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "steps 2048"
