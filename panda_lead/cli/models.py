@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..errors import UserError, exit_on_user_error, parse_cli
 from ..models import restore_sidecar, verify
-from .run import EnvOverrides, given
+from .overrides import EnvOverrides, given
 
 COMMANDS = ("--restore-sidecar", "--adopt")
 

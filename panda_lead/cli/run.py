@@ -6,52 +6,17 @@ only the ones given apply, over the model's sidecar config (or the env's default
 
 from __future__ import annotations
 
-import dataclasses
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Literal
 
 import numpy as np
-import tyro
 
 from .. import harness
-from ..config import EnvConfig, config_docs
+from ..config import EnvConfig
 from ..errors import UserError, did_you_mean, exit_on_user_error, parse_cli
 from ..ilc import ILCConfig
-
-
-def _overrides_class(cls=EnvConfig, name: str = "EnvOverrides"):
-    """``cls`` with every field optional (None: not given): what --env.X sets. A nested config
-    (ik) becomes a nested overrides class, so --env.ik.damping sets that knob alone."""
-    hints = typing.get_type_hints(cls)
-    docs = config_docs(cls)
-    fields = []
-    for f in dataclasses.fields(cls):
-        kind = hints[f.name]
-        if dataclasses.is_dataclass(kind):
-            sub = _overrides_class(kind, f"{kind.__name__}Overrides")
-            fields.append((f.name, sub, field(default_factory=sub)))
-            continue
-        fields.append((f.name, Annotated[kind | None, tyro.conf.arg(
-            help=docs[f.name], help_behavior_hint="(default: the model's, else the env's)")],
-            field(default=None)))
-    return dataclasses.make_dataclass(name, fields, frozen=True)
-
-
-def given(overrides) -> dict:
-    """The flags given, as EnvConfig.merged takes them ({"ik": {"damping": 0.1}, ...})."""
-    out = {}
-    for f in dataclasses.fields(overrides):
-        v = getattr(overrides, f.name)
-        if dataclasses.is_dataclass(v):
-            v = given(v) or None
-        if v is not None:
-            out[f.name] = v
-    return out
-
-
-EnvOverrides = _overrides_class()
+from .overrides import EnvOverrides, given
 
 
 @dataclass
