@@ -90,3 +90,21 @@ print("steps", model.num_timesteps)
     out = run_outside(installed, code, tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "steps 2048"
+
+
+def test_the_declared_mujoco_floor_has_the_batch_api_the_core_needs():
+    """Regression (issue 21): pyproject said mujoco>=3.2 while the core needs mujoco.batch,
+    which arrived in 4.0; a resolver could pick a MuJoCo the core cannot run on."""
+    import importlib
+    import tomllib
+
+    import mujoco
+    from packaging.requirements import Requirement
+    from packaging.version import Version
+
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    spec = next(Requirement(d).specifier for d in deps if Requirement(d).name == "mujoco")
+    floor = min(Version(s.version) for s in spec if s.operator in (">=", "=="))
+    assert floor >= Version("4.0"), spec
+    assert hasattr(importlib.import_module("mujoco.batch"), "Batch")
+    assert Version(mujoco.__version__) >= floor
