@@ -276,6 +276,7 @@ def sweep(*args, cwd):
     return run(ROOT / "studies" / "sweep.py", *args, cwd=cwd, timeout=600)
 
 
+@pytest.mark.slow  # eight sweep.py processes; the default tier checks the sweep's input once
 def test_a_sweep_name_is_a_plain_name(tmp_path):
     """--name ../../x wrote sweeps/../../x.db, outside sweeps/."""
     work = tmp_path / "a" / "b"
@@ -315,6 +316,7 @@ def test_search_flags_belong_to_the_search(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.slow  # seven sweep.py processes
 def test_sweep_storage_failures_are_one_line(tmp_path):
     one_line(sweep("--name", "s", "--storage", "mongodb://localhost/x", cwd=tmp_path),
              "no driver for 'mongodb' databases")
