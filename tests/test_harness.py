@@ -53,27 +53,25 @@ def _ikpd(tmp_path, *args):
 
 def test_one_model_given_by_two_paths_is_one_set_and_two_taus_are_two(tmp_path):
     """Item 11: the same model given once by absolute path was refused as "mixes 2
-    controllers", while a set mixing tau 0.04 and 0.08 was accepted."""
-    import json
+    controllers", while a set mixing tau 0.04 and 0.08 was accepted. In process, through the
+    writer eval.py and ikpd.py call (the command line's own refusal: test_reliability.py)."""
+    import pytest
 
-    from panda_lead.rollout import identity
+    from panda_lead.errors import UserError
 
     model = ROOT / "archive" / "indep_v5.zip"
     (tmp_path / "m").mkdir()
     (tmp_path / "m" / "indep_v5.zip").symlink_to(model)
     (tmp_path / "m" / "indep_v5.json").symlink_to(model.with_suffix(".json"))
-    for seeds, path in (("0", model), ("1", "m/indep_v5.zip")):
-        out = _ikpd(tmp_path, "--controller", "policy", "--model", path, "--seeds", seeds,
-                    "--prefix", "p", "--duration", "0.05")
-        assert out.returncode == 0, out.stderr
-    files = sorted((tmp_path / "rollouts/p").glob("*.npz"))
-    metas = [json.loads(str(np.load(f)["meta"])) for f in files]
-    assert len(metas) == 2 and identity(metas[0]) == identity(metas[1])
-    for seeds, tau in (("0", 0.04), ("1", 0.08)):
-        out = _ikpd(tmp_path, "--controller", "analytic", "--tau", tau, "--seeds", seeds,
-                    "--prefix", "a", "--duration", "0.05")
-    assert out.returncode == 2 and "--force" in out.stderr  # tau 0.08 is another controller
-    assert len(list((tmp_path / "rollouts/a").glob("*.npz"))) == 1
+    quiet = dict(echo=lambda _: None)
+    for seed, path in ((0, model), (1, tmp_path / "m" / "indep_v5.zip")):
+        harness.write_set(harness.build("policy", 5, path), [seed], None, tmp_path, "p", **quiet)
+    assert len(list((tmp_path / "p").glob("*.npz"))) == 2  # one set: the same model's hash
+    harness.write_set(harness.build("analytic", 5, tau=0.04), [0], None, tmp_path, "a", **quiet)
+    with pytest.raises(UserError, match="another controller, model, setting or env"):
+        harness.write_set(harness.build("analytic", 5, tau=0.08), [1], None, tmp_path, "a",
+                          **quiet)
+    assert len(list((tmp_path / "a").glob("*.npz"))) == 1
 
 
 def test_a_set_is_written_as_episodes_finish_not_all_at_the_end(tmp_path, monkeypatch):
@@ -115,12 +113,19 @@ def test_an_interrupted_set_keeps_the_episodes_it_finished(tmp_path):
 
 
 def test_env_flags_that_contradict_the_model_are_refused_up_front(tmp_path):
-    """Item 18: --env.action joint on a lead model crashed mid-episode."""
-    for flag in (["--env.action", "joint"], ["--env.obs-stack", "3"]):
-        out = _ikpd(tmp_path, "--controller", "policy", "--seeds", "0", "--prefix", "p",
-                    "--duration", "0.05", *flag)
-        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
-        assert "contradicts the model" in out.stderr
+    """Item 18: --env.action joint on a lead model crashed mid-episode. Refused when the
+    controller is built, before anything plays; and through ikpd.py as one line."""
+    import pytest
+
+    from panda_lead.errors import UserError
+
+    for flag in ({"action": "joint"}, {"obs_stack": 3}):
+        with pytest.raises(UserError, match="contradicts the model"):
+            harness.build("policy", 5, ROOT / "archive" / "indep_v5.zip", flag)
+    out = _ikpd(tmp_path, "--controller", "policy", "--seeds", "0", "--prefix", "p",
+                "--duration", "0.05", "--env.action", "joint")
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert "contradicts the model" in out.stderr
     assert not (tmp_path / "rollouts").exists()
 
 
