@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory) -> Path:
+def installed(tmp_path_factory):
     """The python of a fresh venv holding the project as a wheel would install it."""
     uv = shutil.which("uv")
     assert uv, "uv is needed to install the project (pip install uv)"
@@ -32,11 +32,16 @@ def installed(tmp_path_factory) -> Path:
     venv = tmp / "venv"
     env = {**os.environ, "UV_PROJECT_ENVIRONMENT": str(venv)}
     env.pop("VIRTUAL_ENV", None)
-    out = subprocess.run([uv, "sync", "--frozen", "--offline", "--no-dev", "--no-editable"],
-                         cwd=copy, env=env, capture_output=True, text=True, timeout=1800)
-    assert out.returncode == 0, out.stderr[-3000:]
-    shutil.rmtree(copy)  # nothing of the source tree is left to import from
-    return venv / "bin" / "python"
+    try:
+        out = subprocess.run([uv, "sync", "--frozen", "--offline", "--no-dev", "--no-editable"],
+                             cwd=copy, env=env, capture_output=True, text=True, timeout=1800)
+        assert out.returncode == 0, out.stderr[-3000:]
+        shutil.rmtree(copy)  # nothing of the source tree is left to import from
+        yield venv / "bin" / "python"
+    finally:
+        # pytest keeps the last three runs' tmp folders: a venv is GBs where uv cannot
+        # hard-link from its cache (another file system), so it goes when the module ends.
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def run_outside(python: Path, code: str, tmp_path: Path) -> subprocess.CompletedProcess:
