@@ -20,7 +20,7 @@ from .errors import UserError, check_typed_fields, did_you_mean
 
 OBS_FEATURES = {
     "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
-    "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3,
+    "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3, "tip_error": 3,
 }
 # Each feature is divided by a fixed scale so that every input of the policy is of order one
 # (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
@@ -28,6 +28,11 @@ OBS_FEATURES = {
 OBS_SCALE = {
     "ee_pos": 1.0, "ee_vel": 2.5, "target_pos": 1.0, "target_vel": 2.5, "target_acc": 30.0,
     "joint_pos": 1.0, "joint_vel": 2.5, "prev_action": 1.0,
+    # The tip's error (tip - target) is what the lead must cancel, to millimetres. From ee_pos
+    # and target_pos alone the network must subtract two inputs of order 0.5 exactly, and any
+    # mismatch of the two weights is a bias that grows with the position; observed directly,
+    # at a 5 cm scale, a millimetre is 0.02 of an input.
+    "tip_error": 0.05,
 }
 # The observation layouts of the reference ladder (the presets build on them).
 OBS_12 = ("ee_pos", "ee_vel", "target_pos", "target_vel")

@@ -42,6 +42,7 @@ class LeadTask:
         self._inv_scale_list = self._inv_scale.tolist()
         self._features = [f for f, _, _ in self.layout]  # for step_one
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
+        self._error_observed = "tip_error" in self._features
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
         self._alive = np.full(n, self._w["alive"])
         self.rngs = [np.random.default_rng() for _ in range(n)]
@@ -135,6 +136,8 @@ class LeadTask:
         source = {"ee_pos": core.tip_pos, "ee_vel": self.ee_vel, "target_pos": pos,
                   "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
                   "joint_vel": core.qvel, "prev_action": self.prev_action}
+        if self._error_observed:
+            source["tip_error"] = core.tip_pos - pos
         for f, a, b in self.layout:
             raw[:, a:b] = source[f]
         if len(self._noisy):
@@ -250,7 +253,8 @@ class LeadTask:
         self.prev_action = action
         source = {"ee_pos": ee, "ee_vel": ee_vel, "target_pos": target,
                   "target_vel": core.target_vel[0, k].tolist(),
-                  "target_acc": core.target_acc[0, k].tolist(), "prev_action": values}
+                  "target_acc": core.target_acc[0, k].tolist(), "prev_action": values,
+                  "tip_error": (dx, dy, dz)}
         if self._joints_observed:
             source["joint_pos"], source["joint_vel"] = core.qpos[0].tolist(), core.qvel[0].tolist()
         raw = [x for f in self._features for x in source[f]]

@@ -90,6 +90,16 @@ def test_observation_layout_follows_the_feature_order():
     np.testing.assert_allclose(obs[3:6], acc / OBS_SCALE["target_acc"], rtol=1e-6)
 
 
+def test_tip_error_is_the_tip_minus_the_target_at_its_scale():
+    e = PandaLeadEnv(obs_features=("ee_pos", "target_pos", "tip_error"))
+    obs, _ = e.reset(seed=0, options={"traj_seed": 2})
+    for _ in range(3):  # at reset (the home pose, ~40 cm off) and after steps
+        tip, target = e.core.tip_pos[0], e.core.target()[0][0]
+        np.testing.assert_allclose(obs[6:9], (tip - target) / OBS_SCALE["tip_error"], rtol=1e-6)
+        assert np.linalg.norm(tip - target) > 0.01  # a real error, not zeros that pass anyway
+        obs, *_ = e.step(np.array([0.3, -0.2, 0.1], dtype=np.float32))
+
+
 def test_lead_is_scaled_and_clipped():
     e = PandaLeadEnv(max_lead=0.1)
     e.reset(seed=0, options={"traj_seed": 1})

@@ -64,8 +64,16 @@ PRESETS.update([
             env=dict(obs_features=OBS_15), net_arch=(256, 256)),
     _preset("v5_settled", "v5 rewarded for settled tracking only (t >= 0.5 s)",
             env=dict(obs_features=OBS_15, reward_after_s=0.5)),
+    # The tip's error observed directly (tip - target at a 5 cm scale), not only as the
+    # difference of two positions of order 0.5 m (config.OBS_SCALE says why).
+    _preset("v5_err", "v5 + the tip's tracking error observed (18-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error",))),
     _preset("v5_decay", "v5 with the learning rate decayed linearly to 0",
             env=dict(obs_features=OBS_15), lr_schedule="linear"),
+    # v7's reward without v7's joint state and termination: -distance plus exp(-distance / 5 cm),
+    # whose slope is 20x steeper near the target, so sub-centimetre precision still pays.
+    _preset("v5_track", "v5 + v7's exponential tracking reward (scale 5 cm), no termination",
+            env=dict(obs_features=OBS_15, w_tracking=1.0)),
     # The reference work's wish: no IK at all. The policy outputs the joint goals itself and
     # sees the joint state it must act on (29-D), v5's reward.
     _preset("ikfree", "no IK: the action is the 7 joint goals (29-D observation, v5's reward)",
