@@ -1,12 +1,17 @@
 """The model archive: a run's best model becomes ``archive/NAME.zip`` with its sidecar
 (``NAME.json``, which the zip also carries) and a model card (``NAME.md``) whose snippet
-reproduces a number of the card exactly, from any folder."""
+reproduces a number of the card exactly, from any folder.
+
+A card is written by ``write_card``; ``rewrite_cards`` rewrites every card of archive/ from
+its zip (the zips and their sidecars untouched), e.g. after the card's template changes:
+
+    uv run python -c "from panda_lead.training.archive import rewrite_cards; rewrite_cards()"
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..config import EnvConfig
 from ..controllers import make_policy
 from ..errors import UserError, check_plain_name
 from ..models import (
@@ -17,7 +22,6 @@ from ..models import (
     load_policy,
     pair_state,
 )
-from ..rollout import record_many
 from ..seeds import QUICK_TEST_SEEDS
 from ..trajectory import SHAPES
 from .evaluation import evaluate
@@ -60,15 +64,31 @@ def archive_model(run_dir: Path, name: str, force: bool = False, caveats: tuple[
         extra = {"test_metrics": test, "test_seed0_mean_error_cm": seed0, "name": name,
                  "source": str(src), **({"caveats": list(caveats)} if caveats else {})}
         side = copy_with_sidecar(src, dst, extra)
-        write_card(dst, side)
+        write_card(dst, side, seed0)
     return dst
 
 
 def card_number(policy, env_config: dict) -> float:
-    """Mean tracking error (cm) on test seed 0, 5 s: the number the model card reproduces."""
-    r = record_many(EnvConfig.from_dict(env_config).replace(episode_steps=500),
-                    make_policy(policy), [0])[0]
-    return float(100 * r.error.mean())
+    """Mean tracking error (cm) on test seed 0, 5 s: the number the model card promises, played
+    exactly as the card's snippet plays it (the single env by id, SB3's float32
+    ``policy.predict``). Not eval.py's way (the float64 numpy actor of ``make_policy`` through
+    the batched task): the two actions differ by ~1e-7, which a lead policy keeps within the
+    6 printed digits and a jerky one (ikfree: 5.408674 cm vs 5.588987) does not."""
+    import gymnasium as gym
+    import numpy as np
+
+    e = gym.make("PandaLead-v0", **{**env_config, "episode_steps": 500})
+    try:
+        obs, _ = e.reset(seed=0, options={"traj_seed": 0})
+        errors, done = [], False
+        while not done:
+            action, _ = policy.predict(obs, deterministic=True)
+            obs, reward, terminated, truncated, info = e.step(action)
+            errors.append(info["distance"])
+            done = terminated or truncated
+    finally:
+        e.close()
+    return float(100 * np.mean(errors))
 
 
 CARD_SNIPPET = '''\
@@ -92,10 +112,21 @@ print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {see
 '''
 
 
-def write_card(zip_path: Path, side: dict) -> Path:
-    """archive/NAME.md: what the model is, its config, its test results, how to load it."""
+def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
+    """archive/NAME.md: what the model is, its config, its test results, how to load it. The
+    card promises ``seed0``, by default the zip played as its snippet plays it (so the promise
+    is what the snippet prints, whatever way an older sidecar's number was computed)."""
     from ..atomicio import atomic_write
 
+    zip_path = Path(zip_path)
+    if seed0 is None:
+        policy, env_config, _ = load_policy(zip_path)
+        seed0 = card_number(policy, env_config)
+    stored = side.get("test_seed0_mean_error_cm")
+    older = "" if stored is None or f"{stored:.6f}" == f"{seed0:.6f}" else (
+        f"\nThe sidecar's `test_seed0_mean_error_cm` ({stored:.6f} cm) was computed eval.py's way "
+        "(the float64\nnumpy actor through the batched task); the snippet's float32 `predict` "
+        "differs from it by ~1e-7\nin the action, which this policy amplifies.")
     name = zip_path.stem
     train = side.get("train_config", {})
     test = side.get("test_metrics", {})
@@ -132,7 +163,7 @@ Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same 
 | all | {test.get('mean_error_cm', float('nan')):.2f} | {test.get('in_band_pct', float('nan')):.1f} |
 {shape_rows}
 
-Test seed 0 alone: {side['test_seed0_mean_error_cm']:.6f} cm (the snippet below reproduces it).
+Test seed 0 alone: {seed0:.6f} cm (the snippet below reproduces it).{older}
 The full results (1,000 test seeds, paired with the baselines): README and docs/results.md.
 
 ## Load it
@@ -143,7 +174,7 @@ would unpickle objects stored in the zip (running any code a tampered file carri
 (`torch.load(weights_only=True)`), after checking the zip's SHA-256.
 
 ```python
-{CARD_SNIPPET.format(name=name, seed0=side['test_seed0_mean_error_cm'])}```
+{CARD_SNIPPET.format(name=name, seed0=seed0)}```
 
 ## Env config
 
@@ -163,3 +194,13 @@ SHA-256 of the zip: `{side.get('model_sha256') or file_sha256(zip_path)}`
     with atomic_write(out, ".tmp.md") as tmp:
         Path(tmp).write_text(text)
     return out
+
+
+def rewrite_cards(names=None) -> list[Path]:
+    """Rewrite archive/NAME.md for each name (default: every archive/*.zip) from its zip and the
+    sidecar it carries; the zips and their JSONs are not touched."""
+    from ..models import verify
+
+    zips = ([archive_path(n) for n in names] if names is not None
+            else sorted(ARCHIVE_DIR.glob("*.zip")))
+    return [write_card(z, verify(z)) for z in zips]

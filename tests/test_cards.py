@@ -1,0 +1,61 @@
+"""The archive's model cards: every card's snippet, run from a folder outside the repo, prints
+the number its card promises (one test seed per card, played in this process as the snippet
+plays it); a card is written with the snippet's number whatever its sidecar holds."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from panda_lead.models import load_policy, verify
+from panda_lead.training.archive import card_number, write_card
+
+ROOT = Path(__file__).resolve().parents[1]
+CARDS = sorted((ROOT / "archive").glob("*.md"))
+
+
+def test_every_archived_model_has_a_card():
+    zips = {p.stem for p in (ROOT / "archive").glob("*.zip")}
+    assert zips and zips == {p.stem for p in CARDS}
+
+
+@pytest.mark.parametrize("card", CARDS, ids=[p.stem for p in CARDS])
+def test_each_cards_snippet_prints_the_number_its_card_promises(card, tmp_path, monkeypatch):
+    text = card.read_text()
+    snippet = re.search(r"```python\n(.*?)```", text, re.S).group(1)
+    promised = re.search(r"# card: ([0-9.]+) cm", snippet).group(1)
+    assert f"Test seed 0 alone: {promised} cm" in text
+    monkeypatch.chdir(tmp_path)  # no ./archive here: the snippet finds the shipped one
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(snippet, f"{card.name} snippet", "exec"), {"__name__": "__main__"})
+    assert re.fullmatch(rf"test seed 0: mean error {re.escape(promised)} cm\n", out.getvalue())
+
+
+def test_a_card_promises_the_snippets_number_not_its_sidecars(tmp_path):
+    # ikfree's sidecar holds 5.588987 cm (the float64 numpy actor through the batched task);
+    # its snippet, SB3's float32 predict through the single env, prints 5.408674.
+    for suffix in (".zip", ".json"):
+        shutil.copy2(ROOT / "archive" / f"ikfree{suffix}", tmp_path / f"ikfree{suffix}")
+    zip_path = tmp_path / "ikfree.zip"
+    side = verify(zip_path)
+    policy, env_config, _ = load_policy(zip_path)
+    seed0 = card_number(policy, env_config)
+    card = write_card(zip_path, side).read_text()
+    promise = f"# card: {seed0:.6f} cm"
+    assert promise in card and f"Test seed 0 alone: {seed0:.6f} cm" in card
+    # A sidecar number the snippet does not print is named as the sidecar's, not promised.
+    other = write_card(zip_path, {**side, "test_seed0_mean_error_cm": seed0 + 0.25}).read_text()
+    assert promise in other and f"`test_seed0_mean_error_cm` ({seed0 + 0.25:.6f} cm)" in other
+    # A sidecar that agrees with the snippet gets no such note.
+    same = write_card(zip_path, {**side, "test_seed0_mean_error_cm": seed0}).read_text()
+    assert promise in same and "`test_seed0_mean_error_cm`" not in same
+    # The zip and its JSON are untouched by writing a card.
+    assert json.loads((tmp_path / "ikfree.json").read_text()) == side
+    verify(zip_path)
