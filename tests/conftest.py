@@ -1,4 +1,5 @@
-"""Shared test helpers: the repo root and running one of its scripts as a user would."""
+"""Shared test helpers: the repo root, running one of its scripts as a user would, and the
+one-line refusal every command line gives bad input."""
 
 from __future__ import annotations
 
@@ -21,3 +22,13 @@ def run_script(script, *args, cwd=None, env=None, check=False, **kwargs) -> subp
     cmd = [sys.executable, str(ROOT / script), *map(str, args)]
     return subprocess.run(cmd, cwd=cwd or ROOT, env=full_env, capture_output=True, text=True,
                           check=check, **kwargs)
+
+
+def one_line(out: subprocess.CompletedProcess, *words: str) -> str:
+    """Exit status 2 and a single `error:` line holding every word; returns the line."""
+    assert out.returncode == 2, out.stdout + out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), out.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    return lines[0]

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_line
 
 from panda_lead import rollout
 from panda_lead.errors import UserError
@@ -29,16 +30,6 @@ T = 50
 def run(*args, cwd, timeout=600):
     return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=ENV)
-
-
-def one_line(out: subprocess.CompletedProcess, *words: str) -> str:
-    """Exit status 2 and a single `error:` line holding every word; returns the line."""
-    assert out.returncode == 2, out.stdout + out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), out.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    return lines[0]
 
 
 def a_rollout(seed: int, offset: float = 0.02) -> Rollout:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_line
 
 from panda_lead import rollout
 from panda_lead.rollout import Rollout, RolloutError
@@ -33,16 +34,6 @@ T = 50
 def run(*args, cwd, timeout=600, **kw):
     return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=ENV, **kw)
-
-
-def one_line(out: subprocess.CompletedProcess, *words: str) -> str:
-    """Exit status 2 and a single `error:` line holding every word; returns the line."""
-    assert out.returncode == 2, out.stdout + out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), out.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    return lines[0]
 
 
 def good_rollout(seed: int = 0) -> Rollout:

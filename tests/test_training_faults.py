@@ -14,6 +14,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from conftest import one_line
 
 from panda_lead.cli.train import parse_args
 from panda_lead.errors import UserError
@@ -28,15 +29,6 @@ ENV = {**os.environ, "MUJOCO_GL": "egl"}
 def run(*args, cwd, timeout=600):
     return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=ENV)
-
-
-def one_line(out: subprocess.CompletedProcess, *words: str) -> None:
-    """Exit status 2 and a single `error:` line holding every word."""
-    assert out.returncode == 2, out.stdout + out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), out.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 def tiny_run(tmp_path: Path) -> Path:
