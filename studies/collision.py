@@ -35,6 +35,8 @@ class Args:
     """Read the collision-prone seeds from this file (one per line) instead of finding them."""
     out: Path = Path("results/collision.md")
     """Where the table goes; the subset's seeds go beside it (<out stem>_seeds.txt)."""
+    force: bool = False
+    """Replace an existing table (and seeds file, when this run finds the subset)."""
 
 
 def find_subset(chunk: int = 1000) -> list[int]:
@@ -68,6 +70,11 @@ def main(args: Args) -> None:
     if not args.models:
         raise UserError("name at least one --models archive/NAME.zip")
     seeds_file = args.out.with_name(args.out.stem + "_seeds.txt")
+    write_seeds = args.subset is None or args.subset.resolve() != seeds_file.resolve()
+    there = [p for p in [args.out, *([seeds_file] if write_seeds else [])] if p.exists()]
+    if there and not args.force:
+        raise UserError(f"{' and '.join(map(str, there))} exist{'s' if len(there) == 1 else ''}; "
+                        "add --force to replace")
     if args.subset is not None:
         try:
             seeds = [int(line) for line in args.subset.read_text().split()]
@@ -137,7 +144,7 @@ def main(args: Args) -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(args.out, ".md") as tmp:
         Path(tmp).write_text(table)
-    if args.subset is None or args.subset.resolve() != seeds_file.resolve():
+    if write_seeds:
         with atomic_write(seeds_file, ".txt") as tmp:
             Path(tmp).write_text("".join(f"{s}\n" for s in seeds))
     print(table)

@@ -37,7 +37,7 @@ if [ "${1:-all}" = all ]; then
     --models archive/indep_v5.zip archive/delayed.zip --seeds 0-499
   uv run studies/robustness.py --question noise --force \
     --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
-  uv run studies/collision.py --models archive/indep_v5.zip archive/collision_v6.zip \
+  uv run studies/collision.py --force --models archive/indep_v5.zip archive/collision_v6.zip \
     archive/collision_v7.zip archive/joint.zip --subset results/collision_seeds.txt
 fi
 # From committed files only: the spread tables and the paired study comparisons.

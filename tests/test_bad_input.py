@@ -134,6 +134,27 @@ def test_eval_video_keeps_an_existing_file_without_force(tmp_path):
     assert video.read_bytes() == b"mine"
 
 
+def test_collision_study_keeps_an_existing_table_and_seeds_without_force(tmp_path):
+    table, seeds = tmp_path / "c.md", tmp_path / "c_seeds.txt"
+    few = tmp_path / "few.txt"
+    few.write_text("1\n2\n3\n")
+    table.write_text("mine")
+    study = (ROOT / "studies" / "collision.py", "--models", ROOT / "archive" / "v5_5m.zip",
+             "--out", table)
+    one_line(run(*study, "--subset", few, cwd=tmp_path), "c.md exists", "--force")
+    # Finding the subset would write the seeds file beside the table: refused before the scan.
+    table.unlink()
+    seeds.write_text("7\n")
+    one_line(run(*study, cwd=tmp_path), "c_seeds.txt exists", "--force")
+    # Reading the seeds back from that file does not write it, so nothing is in the way.
+    one_line(run(*study, "--subset", seeds, cwd=tmp_path), "only 1 collision-prone seeds")
+    table.write_text("mine")
+    # --force passes the check (and stops at the next one: three seeds are too few).
+    one_line(run(*study, "--subset", few, "--force", cwd=tmp_path),
+             "only 3 collision-prone seeds")
+    assert table.read_text() == "mine" and seeds.read_text() == "7\n"
+
+
 # --- item 19: seeds are int64 ---------------------------------------------------------------
 
 def test_seeds_beyond_int64_are_one_line():
