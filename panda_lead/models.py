@@ -463,10 +463,21 @@ def spaces_for(env_config: EnvConfig):
             spaces.Box(-1.0, 1.0, (action_dim(env_config.action),), np.float32))
 
 
+class _NoOptimizer:
+    """What SB3's policy gets instead of Adam when it is loaded to act, never to train: building
+    any torch optimizer imports ``torch._dynamo`` (its ``add_param_group`` is wrapped to disable
+    dynamo), ~6 s of every eval.py process on this machine. No optimizer state is ever read from
+    an archived zip, so no number changes; ``policy.optimizer`` is this inert object."""
+
+    def __init__(self, params, **kwargs) -> None:
+        pass
+
+
 def load_policy(model_path: str | Path, device: str = "cpu"):
     """-> (policy, env config dict, sidecar). The policy (an SB3 ``ActorCriticPolicy``, with
-    ``predict(obs, deterministic)``) is rebuilt from the sidecar the zip carries and gets only
-    the zip's weights. Never unpickles; every problem is one ModelError line."""
+    ``predict(obs, deterministic)``; no optimizer: see ``_NoOptimizer``) is rebuilt from the
+    sidecar the zip carries and gets only the zip's weights. Never unpickles; every problem is
+    one ModelError line."""
     from stable_baselines3.common.policies import ActorCriticPolicy
 
     model_path = Path(model_path)
@@ -482,7 +493,8 @@ def load_policy(model_path: str | Path, device: str = "cpu"):
             f"{model_path}: the model takes a {found}-D observation but its sidecar's features "
             f"({', '.join(env_config.obs_features)}) make {expected}-D; the sidecar does not "
             "belong to this model")
-    policy = ActorCriticPolicy(obs_space, act_space, lambda _: 0.0, **policy_kwargs_of(side))
+    policy = ActorCriticPolicy(obs_space, act_space, lambda _: 0.0, **policy_kwargs_of(side),
+                               optimizer_class=_NoOptimizer)
     try:
         policy.load_state_dict(state)
     except RuntimeError as exc:

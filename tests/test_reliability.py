@@ -240,6 +240,21 @@ def test_archived_models_load_safely_and_are_bound():
         assert side["model_sha256"] and policy.observation_space.shape[0] >= 12
 
 
+def test_loading_a_policy_to_act_builds_no_optimizer():
+    # Any torch optimizer imports torch._dynamo when built (seconds per eval.py process); a
+    # policy loaded to act needs none. In a fresh process, so nothing imported it before.
+    code = ("import sys\n"
+            "from panda_lead.models import archived, load_policy\n"
+            "policy, _, _ = load_policy(archived('v5_5m'))\n"
+            "import torch\n"
+            "print('torch._dynamo' in sys.modules, isinstance(policy.optimizer, "
+            "torch.optim.Optimizer))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "False"]
+
+
 def test_a_full_disk_is_one_line_and_keeps_the_previous_files(untrained_model, tmp_path,
                                                              monkeypatch):
     import errno
