@@ -18,7 +18,26 @@ from .errors import UserError
 from .task import LeadTask
 
 
-class PandaLeadEnv(gym.Env):
+class EpisodeStepsSpec:
+    """The ``spec`` of the single and the vector env: ``gymnasium.make`` and ``make_vec`` record
+    one without ``max_episode_steps`` (none is registered); it is filled in from the one home of
+    the episode length, ``self.cfg.episode_steps``, so RL Zoo and wrappers read the truth."""
+
+    _spec = None
+
+    @property
+    def spec(self):
+        return self._spec
+
+    @spec.setter
+    def spec(self, value) -> None:
+        steps = self.cfg.episode_steps
+        if value is not None and value.max_episode_steps != steps:
+            value = dataclasses.replace(value, max_episode_steps=steps)
+        self._spec = value
+
+
+class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
     """A Franka Panda keeps its tip on a fast target; the action is a lead for the IK target.
 
     Each step (100 Hz) the target moves along an analytic trajectory (`trajectory.py`); the
@@ -77,20 +96,6 @@ class PandaLeadEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 100}
-    _spec = None
-
-    @property
-    def spec(self):
-        return self._spec
-
-    @spec.setter
-    def spec(self, value) -> None:
-        # gymnasium.make records a spec without max_episode_steps (none is registered): fill it
-        # in from the one home of the episode length, so RL Zoo and wrappers read the truth.
-        steps = self.cfg.episode_steps
-        if value is not None and value.max_episode_steps != steps:
-            value = dataclasses.replace(value, max_episode_steps=steps)
-        self._spec = value
 
     def __init__(self, config: EnvConfig | dict | None = None, render_mode: str | None = None,
                  width: int = 640, height: int = 480, **settings):

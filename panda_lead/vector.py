@@ -7,8 +7,6 @@ autoreset modes, frames from the same renderer; only the stepping is batched.
 
 from __future__ import annotations
 
-import dataclasses
-
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -16,14 +14,14 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from .config import EnvConfig, as_config
-from .env import ArmFrames, failure_message
+from .env import ArmFrames, EpisodeStepsSpec, failure_message
 from .errors import UserError, did_you_mean
 from .task import LeadTask
 
 AUTORESET_MODES = [m.value for m in AutoresetMode]
 
 
-class PandaLeadVecEnv(VectorEnv):
+class PandaLeadVecEnv(EpisodeStepsSpec, VectorEnv):
     """N PandaLead-v0 envs in one batch: ``gymnasium.make_vec("PandaLead-v0", num_envs=N)``.
 
     All N arms step in one `mujoco.batch.Batch` in this process; ``num_threads`` (default:
@@ -56,19 +54,6 @@ class PandaLeadVecEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"],
                 "render_fps": 100}
-    _spec = None
-
-    @property
-    def spec(self):
-        return self._spec
-
-    @spec.setter
-    def spec(self, value) -> None:
-        # As the single env: make_vec records no max_episode_steps; report the one home's.
-        steps = self.cfg.episode_steps
-        if value is not None and value.max_episode_steps != steps:
-            value = dataclasses.replace(value, max_episode_steps=steps)
-        self._spec = value
 
     def __init__(self, num_envs: int, config: EnvConfig | dict | None = None,
                  num_threads: int = 0, max_episode_steps: int | None = None,
