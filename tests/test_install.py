@@ -4,15 +4,35 @@ repository with no PYTHONPATH: the env by id, a model card's snippet, 2,048 step
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
+import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_group(cmd, timeout: float, **kwargs) -> subprocess.CompletedProcess:
+    """``subprocess.run(cmd, capture_output=True, text=True, timeout=...)``, but the child leads
+    a process group of its own, killed whole whatever happens (a timeout, a failure, Ctrl-C, or
+    a normal end that left something behind): uv's children and theirs go too, where
+    subprocess.run would kill uv alone and leave them running."""
+    proc = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kwargs)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        if proc.returncode is None:  # interrupted: reap the child and close its pipes
+            proc.communicate()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +53,8 @@ def installed(tmp_path_factory):
     env = {**os.environ, "UV_PROJECT_ENVIRONMENT": str(venv)}
     env.pop("VIRTUAL_ENV", None)
     try:
-        out = subprocess.run([uv, "sync", "--frozen", "--offline", "--no-dev", "--no-editable"],
-                             cwd=copy, env=env, capture_output=True, text=True, timeout=1800)
+        out = run_group([uv, "sync", "--frozen", "--offline", "--no-dev", "--no-editable"],
+                        timeout=1800, cwd=copy, env=env)
         assert out.returncode == 0, out.stderr[-3000:]
         shutil.rmtree(copy)  # nothing of the source tree is left to import from
         yield venv / "bin" / "python"
@@ -46,8 +66,34 @@ def installed(tmp_path_factory):
 
 def run_outside(python: Path, code: str, tmp_path: Path) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    return subprocess.run([str(python), "-c", code], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=900)
+    return run_group([python, "-c", code], timeout=900, cwd=tmp_path, env=env)
+
+
+def _dead(pid: int) -> bool:
+    """Whether ``pid`` has ended (gone, or a zombie nobody has reaped yet); waits up to a
+    minute for a kill to land."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(") ", 1)[1][0]
+        except (FileNotFoundError, ProcessLookupError):
+            return True
+        if state in "ZX":
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_run_group_kills_the_grandchildren_on_a_timeout_and_after_a_normal_end(tmp_path):
+    pid_file = tmp_path / "pid"
+    # A child that starts a grandchild and waits for it: the timeout ends both.
+    with pytest.raises(subprocess.TimeoutExpired):
+        run_group(["sh", "-c", f"sleep 120 >/dev/null 2>&1 & echo $! > {pid_file}; wait"],
+                  timeout=5)
+    assert _dead(int(pid_file.read_text()))
+    # A child that ends at once and leaves its grandchild behind: that goes too.
+    out = run_group(["sh", "-c", "sleep 120 >/dev/null 2>&1 & echo $!"], timeout=60)
+    assert out.returncode == 0 and _dead(int(out.stdout))
 
 
 def test_the_installed_package_is_not_the_checkout(installed, tmp_path):
