@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from conftest import one_line
 
-from panda_lead import rollout
+from panda_lead import models, rollout
 from panda_lead.rollout import Rollout, RolloutError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -475,19 +475,20 @@ def test_a_full_disk_while_writing_the_json_keeps_the_previous_pair(model, tmp_p
 
 
 def test_a_dangling_link_in_the_archive_does_not_break_eval(tmp_path):
-    """eval.py without --model runs the named default model (indep_v5), found in ./archive or
-    the archive shipped with the package; a dangling link there, even under that very name,
-    is neither the newest file nor a crash."""
+    """eval.py without --model runs the named default model (models.DEFAULT_MODEL), found in
+    ./archive or the archive shipped with the package; a dangling link there, even under that
+    very name, is neither the newest file nor a crash."""
+    name = f"{models.DEFAULT_MODEL}.zip"
     archive = tmp_path / "archive"
     archive.mkdir()
     (archive / "zzz_newest.zip").symlink_to(tmp_path / "gone.zip")
-    (archive / "indep_v5.zip").symlink_to(tmp_path / "gone_too.zip")
+    (archive / name).symlink_to(tmp_path / "gone_too.zip")
     out = run(ROOT / "eval.py", "--seeds", "0", "--prefix", "p", "--duration", "0.1",
               cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     meta = rollout.read_meta(tmp_path / "rollouts" / "p" / "seed_0000.npz")
-    assert meta["model"].endswith("archive/indep_v5.zip") and meta["model_sha256"]
-    assert Path(meta["model"]).resolve() != (archive / "indep_v5.zip").absolute()
+    assert meta["model"].endswith(f"archive/{name}") and meta["model_sha256"]
+    assert Path(meta["model"]).resolve() != (archive / name).absolute()
 
 
 # --- a killed writer's temporaries ------------------------------------------------------------

@@ -33,7 +33,7 @@ class Args:
     ILC ORACLE (replays each trajectory and learns its lead from the errors it saw: a ceiling,
     not a controller; started from the --model's lead by default, see --ilc)."""
     model: Path | None = None
-    """Policy zip with its sidecar (default: archive/indep_v5.zip, the headline model)."""
+    """Policy zip with its sidecar (default: archive/v5_5m.zip, the headline model: models.DEFAULT_MODEL)."""
     tau: float | None = None
     """Look-ahead of the analytic lead in seconds (default: the tuned value)."""
     ilc: ILCConfig = field(default_factory=ILCConfig)
