@@ -33,6 +33,7 @@ import importlib.util
 import math
 from dataclasses import dataclass, field
 from functools import cache
+from operator import add, itemgetter, sub
 from pathlib import Path
 
 import mujoco  # (panda_lead/__init__.py chose the GL backend before this first import)
@@ -143,12 +144,21 @@ _UNSTABLE_WARNINGS = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
                                        mujoco.mjtWarning.mjWARN_BADQVEL,
                                        mujoco.mjtWarning.mjWARN_BADQACC,
                                        mujoco.mjtWarning.mjWARN_BADCTRL)]
+_unstable_of = itemgetter(*_UNSTABLE_WARNINGS)  # those four of a list of all the counters
+_TRUE1, _FALSE1 = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)  # (copied, never handed out)
 
 
 try:  # the gufunc np.linalg.solve calls, which solves each matrix of a stack with LAPACK
     from numpy.linalg._umath_linalg import solve as _solve_gufunc
 except ImportError:  # (a private name: should numpy move it, the public function does)
     _solve_gufunc = None
+
+
+def _solve_unchecked(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """_solve without the check for a singular or non-finite system (see _ik_list)."""
+    if _solve_gufunc is None:
+        return np.linalg.solve(a, b)
+    return _solve_gufunc(a, b)  # (float64 operands: its float64 loop, as solve's signature)
 
 
 def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -192,10 +202,11 @@ class ArmBatch:
         self._damp3 = np.eye(3) * ik.damping**2
         self._eps3 = np.eye(3) * 1e-10
         self._regularisers = np.stack([self._damp3, self._eps3])  # (2, 3, 3), see ik()
-        self._lo_list, self._hi_list = self._lo.tolist(), self._hi.tolist()  # for _ik_one
+        self._lo_list, self._hi_list = self._lo.tolist(), self._hi.tolist()  # for _ik_list
         self._home_list = self._home.tolist()
         self._rhs = np.zeros((n, 2, 3, 1))
         self._rhs_err = self._rhs[:, 0, :, 0]
+        self._rhs_pull = self._rhs[0, 1:2]  # (1, 3, 1): J times the pull, for _ik_list
         mocap = m.body("target").mocapid[0]
         # One arm (the single env) runs on a plain MjData stepped by mj_step: Batch documents
         # itself bit-identical to exactly that loop, and its per-call costs (argument checks,
@@ -215,6 +226,19 @@ class ArmBatch:
             self._jacp = np.zeros((1, 3, m.nv))
             self._jacr = np.zeros((1, 3, m.nv))
             self._jacp_row, self._jacr_row = self._jacp[0], self._jacr[0]
+            # Row views made once for step_one: every MjData attribute access builds a new
+            # array object (about 0.1 us each, a few dozen per step).
+            self._sensordata = d.sensordata
+            self._qpos_row, self._ctrl_row = d.qpos[:N_JOINTS], d.ctrl[:N_JOINTS]
+            self._tip_row, self._mocap_row = d.site_xpos[self._tip], d.mocap_pos[mocap]
+            # Operands and outputs of _ik_list's numpy calls, made once. The posture pull is
+            # written into a column; J^T times each system's solution into a buffer whose flat
+            # view gives the 14 numbers in one cheap tolist() (a contiguous buffer of the
+            # result's shape is what the call would allocate: the same numbers).
+            self._pull_col = np.zeros((1, N_JOINTS, 1))
+            self._pull_flat = self._pull_col.reshape(-1)
+            self._steps = np.zeros((2, N_JOINTS, 1))
+            self._steps_flat = self._steps.reshape(-1)
         else:
             self._data = None
             self.batch = b = mujoco.batch.Batch(m, nsim=n, nthread=nthread, persistent=True)
@@ -237,12 +261,20 @@ class ArmBatch:
         self._clearance = (Clearance(m, self.batch, N_JOINTS, ik.clearance) if ik.clearance > 0
                            else None)
         self._skew = np.zeros((n, 3, 3))  # cross-product matrices, rewritten every step
+        self._skew_flat = self._skew[0].reshape(9)  # arm 0's, flat (one arm: one assignment)
         # The tip's Jacobian at the current state, rewritten in place, and its arm columns
         # (and their transpose) as views made once.
         self._jac = np.zeros((n, 3, m.nv))
         self._jac_arm = self._jac[:, :, :N_JOINTS]
         self._jac_arm_t = self._jac_arm.transpose(0, 2, 1)
+        # For _ik_list: the arm's Jacobian twice (views), so that J J^T comes out once per
+        # regulariser and adds to them without broadcasting (which costs a small numpy call
+        # more than the sum itself). Each matrix of a stack is computed on its own: the same
+        # numbers as ik()'s J J^T.
+        self._jac_arm2 = np.broadcast_to(self._jac_arm[:1], (2, 3, N_JOINTS))
+        self._jac_arm2_t = self._jac_arm2.transpose(0, 2, 1)
         self._old_tip = np.zeros((n, 3))
+        self._old_tip_row = self._old_tip[0]
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
         self._fine_pos = None  # the target at every substep (substep_ik only)
@@ -337,7 +369,9 @@ class ArmBatch:
         cfg = self.ik_config
         iters = cfg.iters if iters is None else iters
         if self.batch is None:
-            return self._ik_one(target, q0, iters)
+            target = np.broadcast_to(target, (1, 3))[0].tolist()
+            q0 = None if q0 is None else np.broadcast_to(q0, (1, N_JOINTS))[0].tolist()
+            return np.array([self._ik_list(target, q0, iters)])
         q = (self.qpos if q0 is None else np.broadcast_to(q0, (self.n, N_JOINTS))).copy()
         for i in range(iters):
             if i == 0 and q0 is None:
@@ -374,43 +408,67 @@ class ArmBatch:
             np.minimum(np.maximum(q, self._lo, out=q), self._hi, out=q)  # np.clip, cheaper
         return q
 
-    def _ik_one(self, target: np.ndarray, q0: np.ndarray | None, iters: int) -> np.ndarray:
-        """ik() for one arm, the same numbers: the elementwise arithmetic on Python floats
-        (numpy's elementwise operations round exactly as Python's do, and the operands and
-        their order are ik()'s), the linear algebra through the numpy routines ik() calls, on
-        matrices of the same shapes and layouts (a stack's matrices are each computed on their
-        own, so dropping ik()'s leading axis of one arm changes no number). For one arm each
-        numpy call costs more than the arithmetic in it."""
+    def _ik_list(self, target: list[float], q0: list[float] | None, iters: int) -> list[float]:
+        """ik() for one arm, on Python floats: the same numbers. The elementwise arithmetic is
+        done on Python floats (numpy's elementwise operations round exactly as Python's do, and
+        the operands and their order are ik()'s); the linear algebra goes through the numpy
+        routines ik() calls, on matrices of the same shapes and layouts (a stack's matrices are
+        each computed on their own, so dropping ik()'s leading axis of one arm changes no
+        number), into preallocated outputs. For one arm each numpy call costs more than the
+        arithmetic in it, so this path makes as few as it can: five per iteration."""
         cfg = self.ik_config
         gain, cap = cfg.nullspace_gain, cfg.max_step
-        q = (self.qpos[0] if q0 is None else np.broadcast_to(q0, (1, N_JOINTS))[0]).tolist()
+        q = self._qpos_row.tolist() if q0 is None else q0
         rhs = self._rhs[0]  # (2, 3, 1): the tip error e, and J times the posture pull
         for i in range(iters):
             if i == 0 and q0 is None:
-                jac, jac_t, tip = self._jac_arm, self._jac_arm_t, self.tip_pos
+                jac, jac_t, tip = self._jac_arm, self._jac_arm_t, self._tip_row.tolist()
+                jac2, jac2_t = self._jac_arm2, self._jac_arm2_t
             else:
-                jac, tip = self._kinematics_at(np.array([q]))
+                jac, tip_pos = self._kinematics_at(np.array([q]))
                 jac = jac[:, :, :N_JOINTS]
                 jac_t = jac.transpose(0, 2, 1)
-            jjt = jac @ jac_t
-            np.subtract(target, tip, out=self._rhs_err)
+                tip = tip_pos[0].tolist()
+                jac2 = np.broadcast_to(jac, (2, 3, N_JOINTS))
+                jac2_t = jac2.transpose(0, 2, 1)
+            # (map() over operator functions runs without a Python frame per element, where
+            # Python 3.11 builds and calls one for every comprehension: a few of these add up.)
+            self._rhs_err[0] = list(map(sub, target, tip))
             if gain:
-                pull = [gain * (h - x) for h, x in zip(self._home_list, q, strict=True)]
-                rhs[1] = (jac @ np.array([pull])[:, :, None])[0]
-                a, b = (jac_t @ _solve(jjt + self._regularisers, rhs)).tolist()
-                dq = [x + (p - y) for (x,), p, (y,) in zip(a, pull, b, strict=True)]
+                pull = [gain * x for x in map(sub, self._home_list, q)]  # gain * (home - q)
+                self._pull_flat[:] = pull
+                np.matmul(jac, self._pull_col, out=self._rhs_pull)
+                systems = jac2 @ jac2_t + self._regularisers  # (2, 3, 3): J J^T + each
+                # The solve without _solve's finiteness check (a numpy reduction): a non-finite
+                # solution gives a non-finite product, which the sum of its values shows.
+                np.matmul(jac_t, _solve_unchecked(systems, rhs), out=self._steps)
+                steps = self._steps_flat.tolist()
+                if not math.isfinite(sum(steps)):  # _solve's fallback (see there)
+                    np.matmul(jac_t, np.linalg.solve(systems, rhs), out=self._steps)
+                    steps = self._steps_flat.tolist()
+                # dq = step_0 + (pull - step_1)
+                dq = list(map(add, steps[:N_JOINTS], map(sub, pull, steps[N_JOINTS:])))
             else:
-                a = (jac_t @ _solve(jjt + self._damp3, rhs[:1])).tolist()[0]
+                a = (jac_t @ _solve(jac @ jac_t + self._damp3, rhs[:1])).tolist()[0]
                 dq = [x for (x,) in a]
-            if not all(abs(x) <= cap for x in dq):  # over the cap (or NaN): ik()'s own calls
+            # Over the cap or NaN: ik()'s own calls. (max() may pass over a NaN, the sum never
+            # does; under the cap every value is finite and so is the sum.)
+            if not (max(map(abs, dq)) <= cap and math.isfinite(sum(dq))):
                 d = np.array([dq])
                 d *= np.minimum(1.0, cap / np.maximum(np.maximum.reduce(np.abs(d), axis=1,
                                                                         keepdims=True), 1e-300))
                 dq = d[0].tolist()
-            # np.clip(q + dq, lo, hi) with numpy's NaN handling (max and min keep a NaN first).
-            q = [min(max(x + d, lo), hi)
-                 for x, d, lo, hi in zip(q, dq, self._lo_list, self._hi_list, strict=True)]
-        return np.array([q])
+            # np.clip(q + dq, lo, hi) as ik() computes it, np.minimum(np.maximum(.., lo), hi):
+            # a NaN fails both comparisons and stays, as numpy's maximum and minimum keep it.
+            q_new = []
+            for x, lo, hi in zip(map(add, q, dq), self._lo_list, self._hi_list, strict=True):
+                if x < lo:
+                    x = lo
+                if x > hi:
+                    x = hi
+                q_new.append(x)
+            q = q_new
+        return q
 
     def _kinematics_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tip Jacobians and positions at joint angles q, from a scratch batch (state untouched)."""
@@ -456,19 +514,23 @@ class ArmBatch:
         `forward(stage=NONE)`, which computes nothing but copies those kinematics into the bound
         tip position, then the Jacobian moved from the old point a to the new tip b."""
         old_tip = self._old_tip
-        np.copyto(old_tip, self.tip_pos)
         # The velocity of point b on the tip body is v_a + w x (b - a): J_b = J_a - [b - a]x J_r,
         # [r]x = [[0, -r2, r1], [r2, 0, -r0], [-r1, r0, 0]].
-        if self.batch is None:  # the MjData's tip_pos view is current at once
-            jacp, jacr = self._jacobians(self._data, old_tip)
-            r0, r1, r2 = (b - a for a, b in zip(old_tip[0].tolist(), self.tip_pos[0].tolist(),
-                                                 strict=True))
-            self._skew[0] = ((0.0, -r2, r1), (r2, 0.0, -r0), (-r1, r0, 0.0))
-        else:
-            jacp, jacr = self.batch.jac(self._tip_body, old_tip)
-            self.batch.forward(stage=_STAGE_NONE)
-            r = self.tip_pos - old_tip  # written in one indexed assignment:
-            self._skew.reshape(self.n, 9)[:, _SKEW_AT] = r[:, _SKEW_OF] * _SKEW_SIGN
+        if self.batch is None:  # _jacobians() on row views; the MjData's tip is current at once
+            m, d, old = self.model, self._data, self._old_tip_row
+            old[:] = self._tip_row
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_jac(m, d, self._jacp_row, self._jacr_row, old, self._tip_body)
+            r0, r1, r2 = map(sub, self._tip_row.tolist(), old.tolist())  # b - a
+            self._skew_flat[:] = (0.0, -r2, r1, r2, 0.0, -r0, -r1, r0, 0.0)
+            np.subtract(self._jacp, self._skew @ self._jacr, out=self._jac)
+            return
+        np.copyto(old_tip, self.tip_pos)
+        jacp, jacr = self.batch.jac(self._tip_body, old_tip)
+        self.batch.forward(stage=_STAGE_NONE)
+        r = self.tip_pos - old_tip  # written in one indexed assignment:
+        self._skew.reshape(self.n, 9)[:, _SKEW_AT] = r[:, _SKEW_OF] * _SKEW_SIGN
         np.subtract(jacp, self._skew @ jacr, out=self._jac)
 
     def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None,
@@ -481,6 +543,9 @@ class ArmBatch:
         if self.target_pos is None:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
+        if self.lean and joint_goal is None and joint_offset is None:
+            self.step_one(None if lead is None else np.broadcast_to(lead, (1, 3))[0].tolist())
+            return
         if joint_goal is not None:
             self.q_goal = np.clip(joint_goal, self._lo, self._hi)
         elif self.ik_config.substep_ik:
@@ -498,32 +563,75 @@ class ArmBatch:
         self._mocap[:] = self._target_pos_now()
         self._flags(sensors)
 
+    @property
+    def lean(self) -> bool:
+        """Whether step_one() runs: one arm on a plain MjData, the IK once per control step."""
+        return self.batch is None and not self.ik_config.substep_ik
+
+    def step_one(self, lead: list[float] | None = None) -> tuple[bool, float, bool]:
+        """step(lead) of one arm (when ``lean``), the lead as Python floats: the same numbers
+        as step() on Python floats (see _ik_list), for a fraction of its numpy calls; returns
+        the step's (self_collision, collision_depth, unstable) of arm 0 as Python values."""
+        if self.target_pos is None:
+            raise RuntimeError("ArmBatch.step before any target path: call "
+                               "reset(trajs=[...], n_steps=N) first")
+        k, last = self.step_count.item(0), self.target_pos.shape[1] - 1
+        target = self.target_pos[0, min(k, last)].tolist()  # _target_pos_now()
+        if lead is not None:
+            target = list(map(add, target, lead))
+        q = self._ik_list(target, None, self.ik_config.iters)
+        self.q_goal = np.array([q])
+        self._ctrl_row[:] = q
+        rows, counters = self._physics_rows(self.substeps)
+        self._end_of_step_kinematics()
+        self.step_count[0] = k + 1
+        self._mocap_row[:] = self.target_pos[0, min(k + 1, last)]
+        return self._flags_one(rows, counters)
+
     def _flags(self, sensors: np.ndarray) -> None:
         """The step's flags from the contact sensors recorded after every substep (any touch
         in the step counts) and from MuJoCo's warning counters: MuJoCo resets a simulation
         itself on a NaN/huge position, velocity, acceleration or control (and only warns), so
         a rise in those counters marks the arm unstable."""
+        if self.batch is None:
+            self._flags_one(sensors[0].tolist(), self._warning_number.tolist())
+            return
         warnings = self._unstable_warnings()
-        if self.batch is None:  # one arm: the same flags from Python values (see _ik_one)
-            rows = sensors[0].tolist()
-            touched = any(r[_SELF_FOUND] > 0 for r in rows)
-            unstable = (warnings != self._warnings
-                        or not all(map(math.isfinite, self.qpos[0].tolist())))
-            flags = np.array([touched, any(r[_FLOOR_FOUND] > 0 for r in rows), unstable])
-            self.self_collision, self.floor_contact, self.unstable = flags[0:1], flags[1:2], \
-                flags[2:3]
-            # Without a touch every substep's depth is 0.0, and so is the maximum.
-            self.collision_depth = np.zeros(1) if not touched else np.maximum.reduce(
-                np.where(sensors[:, :, _SELF_FOUND] > 0, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
-        else:  # (a ufunc's reduce is what .any() and .max() call, without their wrappers)
-            found = sensors[:, :, _SELF_FOUND] > 0
-            self.self_collision = np.logical_or.reduce(found, axis=1)
-            self.collision_depth = np.maximum.reduce(
-                np.where(found, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
-            self.floor_contact = np.logical_or.reduce(sensors[:, :, _FLOOR_FOUND] > 0, axis=1)
-            self.unstable = (np.logical_or.reduce(warnings != self._warnings, axis=1)
-                             | ~np.logical_and.reduce(np.isfinite(self.qpos), axis=1))
+        # (a ufunc's reduce is what .any() and .max() call, without their wrappers)
+        found = sensors[:, :, _SELF_FOUND] > 0
+        self.self_collision = np.logical_or.reduce(found, axis=1)
+        self.collision_depth = np.maximum.reduce(
+            np.where(found, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
+        self.floor_contact = np.logical_or.reduce(sensors[:, :, _FLOOR_FOUND] > 0, axis=1)
+        self.unstable = (np.logical_or.reduce(warnings != self._warnings, axis=1)
+                         | ~np.logical_and.reduce(np.isfinite(self.qpos), axis=1))
         self._warnings = warnings
+
+    def _flags_one(self, rows: list[list[float]], counters: list[int]
+                   ) -> tuple[bool, float, bool]:
+        """_flags() of one arm from Python values (see _ik_list): ``rows``, the sensors after
+        each substep, ``counters``, all the warning counters now. Returns (self_collision,
+        collision_depth, unstable) as Python values; the flags are set as (1,) arrays."""
+        touched = floor = False
+        for row in rows:
+            touched = touched or row[_SELF_FOUND] > 0
+            floor = floor or row[_FLOOR_FOUND] > 0
+        warnings = _unstable_of(counters)
+        unstable = (warnings != self._warnings
+                    or not all(map(math.isfinite, self._qpos_row.tolist())))
+        self._warnings = warnings
+        if touched:  # _flags()'s own calls (numpy's maximum keeps a NaN; max() may not)
+            sensors = np.array([rows])
+            self.collision_depth = np.maximum.reduce(
+                np.where(sensors[:, :, _SELF_FOUND] > 0, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
+            depth = float(self.collision_depth[0])
+        else:  # without a touch every substep's depth is 0.0, and so is the maximum
+            self.collision_depth, depth = np.zeros(1), 0.0
+        # Fresh (1,) arrays each step, as _flags() makes (copies: cheaper than np.array).
+        self.self_collision = (_TRUE1 if touched else _FALSE1).copy()
+        self.floor_contact = (_TRUE1 if floor else _FALSE1).copy()
+        self.unstable = (_TRUE1 if unstable else _FALSE1).copy()
+        return touched, depth, unstable
 
     def _physics(self, out: np.ndarray) -> np.ndarray:
         """Every arm's physics substeps, (N, nstep, nsensordata) ``out`` recording the sensors
@@ -531,26 +639,32 @@ class ArmBatch:
         if self.batch is not None:
             return self.batch.rollout(out.shape[1], record=("sensordata",),
                                       out={"sensordata": out})["sensordata"]
-        m, d, nstep = self.model, self._data, out.shape[1]
-        counters = self._warning_number
-        start, rows = counters.tolist(), []
+        out[0] = self._physics_rows(out.shape[1])[0]
+        return out
+
+    def _physics_rows(self, nstep: int) -> tuple[list[list[float]], list[int]]:
+        """One arm's substeps on its MjData: the sensors after each (nstep rows) and all the
+        warning counters after the last, as Python values."""
+        m, d, sensordata, counters = self.model, self._data, self._sensordata, self._warning_number
+        mj_step = mujoco.mj_step
+        start = now = counters.tolist()
+        rows = []
         for j in range(nstep):
-            mujoco.mj_step(m, d)
-            rows.append(d.sensordata.tolist())
+            mj_step(m, d)
+            rows.append(sensordata.tolist())
             # As Batch.rollout: an arm whose warning counters rise stops stepping, and its
             # remaining records repeat its last ones.
-            if counters.tolist() != start:
+            now = counters.tolist()
+            if now != start:
                 rows += rows[-1:] * (nstep - 1 - j)
                 break
-        out[0] = rows
-        return out
+        return rows, now
 
     def _unstable_warnings(self) -> np.ndarray | list[int]:
         """(N, 4) counters of MuJoCo's bad qpos, qvel, qacc and ctrl warnings (a copy); for one
-        arm a list of the four."""
+        arm a tuple of the four."""
         if self.batch is None:
-            counts = self._warning_number.tolist()
-            return [counts[w] for w in _UNSTABLE_WARNINGS]
+            return _unstable_of(self._warning_number.tolist())
         return self.batch.warning[:, _UNSTABLE_WARNINGS, 1]
 
     def warning_counts(self) -> np.ndarray:

@@ -8,6 +8,7 @@ seeds.
 from __future__ import annotations
 
 import math
+from operator import mul
 
 import numpy as np
 
@@ -65,6 +66,10 @@ class LeadTask:
         self._act_hist = np.zeros((n, c.action_delay + 1, self.action_dim))
         self.obs_delay = np.full(n, c.obs_delay)
         self.action_delay = np.full(n, c.action_delay)
+        # step_one's lean route: a lead with no action delay goes to the core's one-arm step
+        # as Python floats (the lead is the action times max_lead, as _control computes it).
+        self._lean_lead = n == 1 and self.core.lean and c.action == "lead" and not self._delayed
+        self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
 
@@ -208,26 +213,35 @@ class LeadTask:
         if self.n != 1:
             raise ValueError(f"step_one is for a task of one slot; this one has {self.n}")
         c, w, core = self.config, self._w, self.core
-        values = np.ravel(action).tolist()
+        # (an array's own ravel: np.ravel's dispatch costs more than the copy out)
+        values = (action.ravel() if type(action) is np.ndarray else np.ravel(action)).tolist()
         if len(values) != self.action_dim:
             raise ValueError(f"action must have {self.action_dim} values, got {len(values)}")
         if not all(map(math.isfinite, values)):
             raise ValueError(f"action must be finite, got {np.ravel(action)} (trajectory seed "
                              f"{self.traj_seeds[0]})")
-        values = [min(max(float(x), -1.0), 1.0) for x in values]  # np.clip, exactly
+        # np.clip, exactly: np.minimum(np.maximum(x, -1), 1) (no NaN gets here)
+        values = [-1.0 if x < -1.0 else 1.0 if x > 1.0 else float(x) for x in values]
         action = np.array([values])
-        self._control(action)
+        if self._lean_lead:  # _control() on Python floats: lead = action * max_lead
+            lead = [x * c.max_lead for x in values]
+            self.lead = np.array([lead])
+            collision, depth, unstable = core.step_one(lead)
+        else:
+            self._control(action)
+            collision, unstable = bool(core.self_collision[0]), bool(core.unstable[0])
+            depth = float(core.collision_depth[0])
+        # The 3-vectors' arithmetic written out (a comprehension costs more than its maths).
         ee = core.tip_pos[0].tolist()
-        dt = self.dt
-        ee_vel = [(a - b) / dt for a, b in zip(ee, self._prev_ee[0].tolist(), strict=True)]
+        (e0, e1, e2), (p0, p1, p2), dt = ee, self._prev_ee[0].tolist(), self.dt
+        ee_vel = [(e0 - p0) / dt, (e1 - p1) / dt, (e2 - p2) / dt]
         self.ee_vel[0], self._prev_ee[0] = ee_vel, ee
-        step = int(core.step_count[0])
+        step = core.step_count.item(0)
         k = min(step, c.episode_steps)  # the core's path index (its paths have one row more)
         target = core.target_pos[0, k].tolist()
-        dx, dy, dz = (a - b for a, b in zip(ee, target, strict=True))
+        t0, t1, t2 = target
+        dx, dy, dz = e0 - t0, e1 - t1, e2 - t2
         dist = math.sqrt((dx * dx + dy * dy) + dz * dz)  # _distance() on Python floats
-        collision, unstable = bool(core.self_collision[0]), bool(core.unstable[0])
-        depth = float(core.collision_depth[0])
         terminated = unstable or (collision and c.terminate_on_collision)
         truncated = not terminated and step >= c.episode_steps
         counts = step * self.dt >= c.reward_after_s - 1e-9
@@ -257,20 +271,25 @@ class LeadTask:
                   "tip_error": (dx, dy, dz)}
         if self._joints_observed:
             source["joint_pos"], source["joint_vel"] = core.qpos[0].tolist(), core.qvel[0].tolist()
-        raw = [x for f in self._features for x in source[f]]
+        raw = []
+        for f in self._features:
+            raw += source[f]
         if len(self._noisy):
             noise = self.rngs[0].normal(0.0, self._noise_std[self._noisy]).tolist()
             for j, v in zip(self._noisy.tolist(), noise, strict=True):
                 raw[j] += v
-        obs = np.array([[x * s for x, s in zip(raw, self._inv_scale_list, strict=True)]],
-                       dtype=np.float32)
-        obs = self._observed(obs, core.unstable if unstable else None)
+        scaled = list(map(mul, raw, self._inv_scale_list))  # raw * inv_scale
+        if self._plain_obs and not unstable:
+            obs = np.array(scaled, dtype=np.float32)
+        else:
+            obs = self._observed(np.array([scaled], dtype=np.float32),
+                                 core.unstable if unstable else None)[0]
         info = {"distance": dist, "reward_terms": terms, "self_collision": collision,
                 "collision_depth": depth, "reachable": bool(self._reachable[0, k]),
                 "lead": self.lead[0].copy()}
         if terminated:
             info["failure"] = "unstable" if unstable else "self_collision"
-        return obs[0], reward, terminated, truncated, info
+        return obs, reward, terminated, truncated, info
 
     def _checked(self, action: np.ndarray) -> np.ndarray:
         """Finite actions, clipped to [-1, 1] in place; a NaN or infinity is a clear error."""

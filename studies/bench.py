@@ -37,6 +37,10 @@ class Args:
     """Only the per-step ratio: time raw physics and the batched env step back to back this
     many times and print each ratio and their median (steadier than one pair on a shared
     machine, whose speed drifts between the start and the end of a full run)."""
+    single_pairs: int = 0
+    """Only the single env's ratio, the same way: raw physics and a gymnasium.make step (400
+    random-action steps, median of 3 each) back to back this many times, each ratio and their
+    median (docs/performance.md, "The single env")."""
 
 
 def median_time(fn, repeats: int) -> float:
@@ -208,6 +212,16 @@ def main() -> None:
     n = 200 if args.quick else 2000
     secs = 0.5 if args.quick else 2.0
     rows: list[tuple[str, str]] = []
+    if args.single_pairs:
+        ratios = []
+        for _ in range(args.single_pairs):
+            physics, single = bench_physics(400, 3), bench_single_env(400, 3)
+            ratios.append(single / physics)
+            print(f"raw physics {physics:.1f} us, single env step via gymnasium.make "
+                  f"{single:.1f} us: {single / physics:.2f}x", flush=True)
+        print(f"median of {len(ratios)} pairs: {statistics.median(ratios):.2f}x physics "
+              f"(range {min(ratios):.2f}-{max(ratios):.2f})")
+        return
     if args.step_pairs:
         ratios = []
         for _ in range(args.step_pairs):

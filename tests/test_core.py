@@ -185,6 +185,19 @@ def test_stepping_before_a_target_path_is_a_clear_error():
         ArmBatch(1, nthread=1).step()
 
 
+def test_the_single_env_steps_the_lean_one_arm_path():
+    """The bit-for-bit tests of one arm (below, and tests/test_vector.py's single envs) go
+    through ArmBatch.step_one, the path the single env takes by default (docs/performance.md)."""
+    from panda_lead.env import PandaLeadEnv
+
+    assert ArmBatch(1, nthread=1).lean
+    assert not ArmBatch(2, nthread=1).lean
+    assert not ArmBatch(1, IKConfig(substep_ik=True), nthread=1).lean
+    assert not ArmBatch(1, IKConfig(clearance=0.02), nthread=1).lean  # it needs the batch
+    assert PandaLeadEnv().task._lean_lead
+    assert not PandaLeadEnv(action_delay=1).task._lean_lead
+
+
 @pytest.mark.parametrize("ik", [IKConfig(), IKConfig(iters=2), IKConfig(nullspace_gain=0.0),
                                 IKConfig(max_step=0.01)])
 def test_one_arm_core_is_a_row_of_a_batch_bit_for_bit(ik):
