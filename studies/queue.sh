@@ -7,6 +7,8 @@
 #   v5        the headline configuration, 5 seeds
 #   v5_joint  v5 + the joint state (29-D), v5's reward: what the joint state alone buys
 #   climb     v5_stack (v5 + the last 3 observations): 3 seeds
+#   v5_decay, v5_err, v5_track, v5_prev   the climb's later steps, 3 seeds each
+#   v7        the self-collision study's v7 at the presets' budget, 5 seeds
 #   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result)
 # The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
 # curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side.
@@ -20,6 +22,11 @@ if [ "${1:-main}" = main ]; then
   sweep --name v5_joint --presets v5 --seeds 1 2 3 4 5 \
     --train-args="--env.obs-features ee_pos ee_vel target_pos target_vel target_acc joint_pos joint_vel"
   sweep --name climb --presets v5_stack --seeds 1 2 3
+  # the climb, one change to v5 each, 3 seeds (2026-11-24)
+  for preset in v5_decay v5_err v5_track v5_prev; do
+    sweep --name "$preset" --presets "$preset" --seeds 1 2 3
+  done
+  sweep --name v7 --presets v7 --seeds 1 2 3 4 5
   sweep --name ikfree --presets ikfree --seeds 1
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5

@@ -1,0 +1,70 @@
+"""Where a controller's settled error comes from: a bias or a wobble, per shape.
+
+    uv run studies/bias.py --prefixes analytic v5_5m ilc       # rollout sets under rollouts/
+
+For each rollout, over the settled window (t >= 0.5 s, after the swing from the home pose):
+- settled: the mean of |tip - target| (the settled error of docs/metrics.md);
+- bias: |mean of (tip - target)|, the part of the error that a constant offset of the lead
+  for the whole trajectory would cancel (an integrator's job);
+- wobble: the mean of |e - e smoothed over 11 steps (0.11 s)|, the fast part of the error.
+Printed per shape and overall: the mean over rollouts, the median in brackets (cm). It reads
+rollout files only; every set must hold the same seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from panda_lead.errors import UserError, exit_on_user_error, parse_cli
+
+SETTLE_S = 0.5
+SMOOTH_STEPS = 11
+
+
+@dataclass
+class Args:
+    prefixes: list[str] = field(default_factory=lambda: ["analytic", "v5_5m", "ilc"])
+    """Rollout sets (folders under --root) to compare."""
+    root: Path = Path("rollouts")
+    """Where the rollout sets live."""
+
+
+def parts(r) -> tuple[float, float, float]:
+    """(settled, bias, wobble) of one rollout, in cm."""
+    e = (r.ee_pos - r.target_pos)[r.t >= SETTLE_S - 1e-9]
+    if len(e) <= 2 * SMOOTH_STEPS:
+        raise UserError(f"seed {r.seed}: too short to split ({len(e)} settled steps)")
+    kernel = np.ones(SMOOTH_STEPS) / SMOOTH_STEPS
+    smooth = np.stack([np.convolve(e[:, j], kernel, mode="same") for j in range(3)], axis=1)
+    inner = slice(SMOOTH_STEPS, -SMOOTH_STEPS)  # away from the convolution's edges
+    return (100 * float(np.linalg.norm(e, axis=1).mean()),
+            100 * float(np.linalg.norm(e.mean(axis=0))),
+            100 * float(np.linalg.norm((e - smooth)[inner], axis=1).mean()))
+
+
+@exit_on_user_error
+def main(args: Args) -> None:
+    from panda_lead.metrics.pairing import load_set
+
+    sets = {p: load_set(p, args.root) for p in args.prefixes}
+    seeds = sorted(next(iter(sets.values())))
+    for p, s in sets.items():
+        if sorted(s) != seeds:
+            raise UserError(f"rollouts/{p} holds other seeds than rollouts/{args.prefixes[0]}")
+    shapes = sorted({r.shape for r in next(iter(sets.values())).values()})
+    print(f"settled window t >= {SETTLE_S} s; {len(seeds)} seeds; mean over rollouts [median], cm\n")
+    print("| shape | n | set | settled | bias | wobble |")
+    print("|---|---|---|---|---|---|")
+    for shape in [*shapes, "all"]:
+        for p, s in sets.items():
+            rows = np.array([parts(r) for r in s.values() if shape in ("all", r.shape)])
+            cells = " | ".join(f"{m:.2f} [{md:.2f}]" for m, md in
+                               zip(rows.mean(axis=0), np.median(rows, axis=0), strict=True))
+            print(f"| {shape} | {len(rows)} | {p} | {cells} |")
+
+
+if __name__ == "__main__":
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()
