@@ -3,12 +3,12 @@
 # study's runs land under sweeps/<name>/runs/; `bash studies/results.sh` turns them into the
 # committed summaries (results/runs/) and every table and figure.
 #
-# At the presets' budget (5M steps, ~27 minutes per run on one of 2 cores):
+# At the presets' budget (5M steps: 9-14 minutes per run alone on 2 cores, ~27 with two at once):
 #   v5        the headline configuration, 5 seeds
 #   v5_joint  v5 + the joint state (29-D), v5's reward: what the joint state alone buys
 #   climb     v5_stack (v5 + the last 3 observations): 3 seeds
 #   v5_decay, v5_err, v5_track, v5_prev   the climb's later steps, 3 seeds each
-#   v7        the self-collision study's v7 at the presets' budget, 5 seeds
+#   v7, delayed, noisy   the side studies' trained policies at the presets' budget, 5 seeds
 #   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result)
 # The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
 # curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side.
@@ -27,13 +27,13 @@ if [ "${1:-main}" = main ]; then
     sweep --name "$preset" --presets "$preset" --seeds 1 2 3
   done
   sweep --name v7 --presets v7 --seeds 1 2 3 4 5
+  sweep --name delayed_5m --presets delayed --seeds 1 2 3 4 5   # the latency study's policy
+  sweep --name noisy_5m --presets noisy --seeds 1 2 3 4 5       # the noise study's policy
   sweep --name ikfree --presets ikfree --seeds 1
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
-  sweep --name noisy --presets v5 --seeds 1 2 3 \
-    --train-args="--env.obs-noise ee_pos 0.01 target_pos 0.01 ee_vel 0.1 target_vel 0.1 target_acc 1.0"
-  sweep --name delayed --presets v5 --seeds 1 2 3 \
-    --train-args="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
+  sweep --name noisy --presets noisy --seeds 1 2 3
+  sweep --name delayed --presets delayed --seeds 1 2 3
   sweep --name collision_v6 --presets v6 --seeds 1 2 3
   sweep --name collision_v7 --presets v7 --seeds 1 2 3
   sweep --name curriculum --presets v5 --seeds 1 2 3 --train-args="--curriculum-steps 500000"

@@ -74,6 +74,16 @@ PRESETS.update([
     # whose slope is 20x steeper near the target, so sub-centimetre precision still pays.
     _preset("v5_track", "v5 + v7's exponential tracking reward (scale 5 cm), no termination",
             env=dict(obs_features=OBS_15, w_tracking=1.0)),
+    # The side studies' trained configurations (docs/questions.md 1 and 2), named so that a
+    # study is one preset and its runs are re-derivable from the summary's config alone.
+    _preset("noisy", "v5 trained with observation noise (1 cm on positions, 0.1 m/s on "
+            "velocities, 1 m/s^2 on the target's acceleration)",
+            env=dict(obs_features=OBS_15, obs_noise={"ee_pos": 0.01, "target_pos": 0.01,
+                                                      "ee_vel": 0.1, "target_vel": 0.1,
+                                                      "target_acc": 1.0})),
+    _preset("delayed", "v5 trained with latency: observation and action delays drawn per "
+            "episode from 0-3 control steps",
+            env=dict(obs_features=OBS_15, obs_delay=3, action_delay=3, random_delay=True)),
     # The reference work's wish: no IK at all. The policy outputs the joint goals itself and
     # sees the joint state it must act on (29-D), v5's reward.
     _preset("ikfree", "no IK: the action is the 7 joint goals (29-D observation, v5's reward)",
