@@ -68,6 +68,9 @@ PRESETS.update([
     # difference of two positions of order 0.5 m (config.OBS_SCALE says why).
     _preset("v5_err", "v5 + the tip's tracking error observed (18-D)",
             env=dict(obs_features=OBS_15 + ("tip_error",))),
+    _preset("v5_err_decay", "v5_err with the learning rate decayed linearly to 0 (the climb's "
+            "two changes that each helped, together)",
+            env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear"),
     _preset("v5_decay", "v5 with the learning rate decayed linearly to 0",
             env=dict(obs_features=OBS_15), lr_schedule="linear"),
     # v7's reward without v7's joint state and termination: -distance plus exp(-distance / 5 cm),
