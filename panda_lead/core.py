@@ -230,6 +230,7 @@ class ArmBatch:
             # array object (about 0.1 us each, a few dozen per step).
             self._sensordata = d.sensordata
             self._qpos_row, self._ctrl_row = d.qpos[:N_JOINTS], d.ctrl[:N_JOINTS]
+            self._ctrl_goal = self._ctrl[:, :N_JOINTS]
             self._tip_row, self._mocap_row = d.site_xpos[self._tip], d.mocap_pos[mocap]
             # Operands and outputs of _ik_list's numpy calls, made once. The posture pull is
             # written into a column; J^T times each system's solution into a buffer whose flat
@@ -277,6 +278,7 @@ class ArmBatch:
         self._old_tip_row = self._old_tip[0]
         self._scratch = None  # a second batch for IK iterations away from the measured q
         self.target_pos = self.target_vel = self.target_acc = None
+        self.path_rows = None  # one arm: the three paths as lists of rows (_set_paths)
         self._fine_pos = None  # the target at every substep (substep_ik only)
         self.reset()
 
@@ -318,6 +320,9 @@ class ArmBatch:
         for i, traj in zip(ids, trajs, strict=True):
             pos, vel, acc = traj.at(times)
             self.target_pos[i], self.target_vel[i], self.target_acc[i] = pos, vel, acc
+        if self.n == 1:  # for the one-slot steps: Python rows, one index each (not a tolist)
+            self.path_rows = (self.target_pos[0].tolist(), self.target_vel[0].tolist(),
+                              self.target_acc[0].tolist())
         if self.ik_config.substep_ik:  # the target at every physics substep, for the IK there
             fine = n_steps * self.substeps + 1
             if self._fine_pos is None or self._fine_pos.shape[1] != fine:
@@ -459,15 +464,10 @@ class ArmBatch:
                                                                         keepdims=True), 1e-300))
                 dq = d[0].tolist()
             # np.clip(q + dq, lo, hi) as ik() computes it, np.minimum(np.maximum(.., lo), hi):
-            # a NaN fails both comparisons and stays, as numpy's maximum and minimum keep it.
-            q_new = []
-            for x, lo, hi in zip(map(add, q, dq), self._lo_list, self._hi_list, strict=True):
-                if x < lo:
-                    x = lo
-                if x > hi:
-                    x = hi
-                q_new.append(x)
-            q = q_new
+            # a NaN fails both comparisons and stays, as numpy's maximum and minimum keep it
+            # (one comprehension: cheaper than a loop of appends; lo < hi, so hi wins over lo).
+            q = [hi if x > hi else lo if x < lo else x
+                 for x, lo, hi in zip(map(add, q, dq), self._lo_list, self._hi_list)]
         return q
 
     def _kinematics_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -575,17 +575,18 @@ class ArmBatch:
         if self.target_pos is None:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
-        k, last = self.step_count.item(0), self.target_pos.shape[1] - 1
-        target = self.target_pos[0, min(k, last)].tolist()  # _target_pos_now()
+        k, path = self.step_count.item(0), self.path_rows[0]
+        last = len(path) - 1
+        target = path[min(k, last)]  # _target_pos_now()
         if lead is not None:
             target = list(map(add, target, lead))
         q = self._ik_list(target, None, self.ik_config.iters)
-        self.q_goal = np.array([q])
         self._ctrl_row[:] = q
+        self.q_goal = self._ctrl_goal.copy()  # np.array([q]): the same float64s, cheaper
         rows, counters = self._physics_rows(self.substeps)
         self._end_of_step_kinematics()
         self.step_count[0] = k + 1
-        self._mocap_row[:] = self.target_pos[0, min(k + 1, last)]
+        self._mocap_row[:] = path[min(k + 1, last)]
         return self._flags_one(rows, counters)
 
     def _flags(self, sensors: np.ndarray) -> None:
@@ -646,19 +647,18 @@ class ArmBatch:
         """One arm's substeps on its MjData: the sensors after each (nstep rows) and all the
         warning counters after the last, as Python values."""
         m, d, sensordata, counters = self.model, self._data, self._sensordata, self._warning_number
-        mj_step = mujoco.mj_step
-        start = now = counters.tolist()
+        mj_step, record = mujoco.mj_step, sensordata.tolist
+        start = counters.tobytes()  # (compared as bytes: cheaper than a list each substep)
         rows = []
         for j in range(nstep):
             mj_step(m, d)
-            rows.append(sensordata.tolist())
+            rows.append(record())
             # As Batch.rollout: an arm whose warning counters rise stops stepping, and its
             # remaining records repeat its last ones.
-            now = counters.tolist()
-            if now != start:
+            if counters.tobytes() != start:
                 rows += rows[-1:] * (nstep - 1 - j)
                 break
-        return rows, now
+        return rows, counters.tolist()
 
     def _unstable_warnings(self) -> np.ndarray | list[int]:
         """(N, 4) counters of MuJoCo's bad qpos, qvel, qacc and ctrl warnings (a copy); for one

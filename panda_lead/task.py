@@ -45,6 +45,11 @@ class LeadTask:
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         self._error_observed = "tip_error" in self._features
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
+        # step_one's weights, signed as its terms use them (one unpack, not a dict lookup each)
+        self._signed_w = (-self._w["distance"], self._w["tracking"], -self._w["action"],
+                          -self._w["action_change"], -self._w["collision"], self._w["alive"],
+                          -self._w["termination"])
+        self._reward_from = c.reward_after_s - 1e-9  # step()'s threshold on the time
         self._alive = np.full(n, self._w["alive"])
         self.rngs = [np.random.default_rng() for _ in range(n)]
         self.action_dim = action_dim(c.action)
@@ -94,6 +99,8 @@ class LeadTask:
         core = self.core
         core.reset(ids, trajs, self.config.episode_steps)
         self._reachable[ids] = reachable(core.target_pos[ids])
+        if self.n == 1:  # step_one's, as Python bools
+            self._reachable_row = self._reachable[0].tolist()
         self.prev_action[ids] = 0.0
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
@@ -212,7 +219,7 @@ class LeadTask:
         """
         if self.n != 1:
             raise ValueError(f"step_one is for a task of one slot; this one has {self.n}")
-        c, w, core = self.config, self._w, self.core
+        c, core = self.config, self.core
         # (an array's own ravel: np.ravel's dispatch costs more than the copy out)
         values = (action.ravel() if type(action) is np.ndarray else np.ravel(action)).tolist()
         if len(values) != self.action_dim:
@@ -238,36 +245,38 @@ class LeadTask:
         self.ee_vel[0], self._prev_ee[0] = ee_vel, ee
         step = core.step_count.item(0)
         k = min(step, c.episode_steps)  # the core's path index (its paths have one row more)
-        target = core.target_pos[0, k].tolist()
+        path_pos, path_vel, path_acc = core.path_rows  # (Python rows: no numpy call per row)
+        target = path_pos[k]
         t0, t1, t2 = target
         dx, dy, dz = e0 - t0, e1 - t1, e2 - t2
         dist = math.sqrt((dx * dx + dy * dy) + dz * dz)  # _distance() on Python floats
         terminated = unstable or (collision and c.terminate_on_collision)
         truncated = not terminated and step >= c.episode_steps
-        counts = step * self.dt >= c.reward_after_s - 1e-9
+        counts = step * dt >= self._reward_from
+        w_dist, w_track, w_act, w_change, w_coll, w_alive, w_term = self._signed_w
         # A zero weight times anything finite is a zero of the weight's sign, so the numpy
         # calls behind a term whose weight is zero are skipped (the defaults weigh most so).
-        e = np.exp(np.array([-dist / c.tracking_scale]))[0] if w["tracking"] else 1.0
-        sq = np.einsum("ij,ij->i", action, action)[0] if w["action"] else 0.0
-        da = action - self.prev_action if w["action_change"] else None
-        dsq = np.einsum("ij,ij->i", da, da)[0] if w["action_change"] else 0.0
-        terms = {
-            "distance": -w["distance"] * dist if counts else 0.0,
-            "tracking": float(w["tracking"] * e) if counts else 0.0,
-            "action": float(-w["action"] * sq),
-            "action_change": float(-w["action_change"] * dsq),
-            "collision": -w["collision"] * depth,
-            "alive": w["alive"],
-            "termination": -w["termination"] if terminated else 0.0,
-        }
+        e = np.exp(np.array([-dist / c.tracking_scale]))[0] if w_track else 1.0
+        sq = np.einsum("ij,ij->i", action, action)[0] if w_act else 0.0
+        da = action - self.prev_action if w_change else None
+        dsq = np.einsum("ij,ij->i", da, da)[0] if w_change else 0.0
         if unstable:  # a blown-up arm earns only its termination cost
-            for name in REWARD_TERMS[:-1]:
-                terms[name] = 0.0
+            terms = dict.fromkeys(REWARD_TERMS[:-1], 0.0)
+            terms["termination"] = w_term if terminated else 0.0
+        else:
+            terms = {
+                "distance": w_dist * dist if counts else 0.0,
+                "tracking": float(w_track * e) if counts else 0.0,
+                "action": float(w_act * sq),
+                "action_change": float(w_change * dsq),
+                "collision": w_coll * depth,
+                "alive": w_alive,
+                "termination": w_term if terminated else 0.0,
+            }
         reward = sum(terms.values())
         self.prev_action = action
         source = {"ee_pos": ee, "ee_vel": ee_vel, "target_pos": target,
-                  "target_vel": core.target_vel[0, k].tolist(),
-                  "target_acc": core.target_acc[0, k].tolist(), "prev_action": values,
+                  "target_vel": path_vel[k], "target_acc": path_acc[k], "prev_action": values,
                   "tip_error": (dx, dy, dz)}
         if self._joints_observed:
             source["joint_pos"], source["joint_vel"] = core.qpos[0].tolist(), core.qvel[0].tolist()
@@ -278,14 +287,12 @@ class LeadTask:
             noise = self.rngs[0].normal(0.0, self._noise_std[self._noisy]).tolist()
             for j, v in zip(self._noisy.tolist(), noise, strict=True):
                 raw[j] += v
-        scaled = list(map(mul, raw, self._inv_scale_list))  # raw * inv_scale
-        if self._plain_obs and not unstable:
-            obs = np.array(scaled, dtype=np.float32)
-        else:
-            obs = self._observed(np.array([scaled], dtype=np.float32),
-                                 core.unstable if unstable else None)[0]
+        # raw * inv_scale to float32 (fromiter: no list in between, and cheaper than np.array)
+        obs = np.fromiter(map(mul, raw, self._inv_scale_list), np.float32, len(raw))
+        if not self._plain_obs or unstable:
+            obs = self._observed(obs[None], core.unstable if unstable else None)[0]
         info = {"distance": dist, "reward_terms": terms, "self_collision": collision,
-                "collision_depth": depth, "reachable": bool(self._reachable[0, k]),
+                "collision_depth": depth, "reachable": self._reachable_row[k],
                 "lead": self.lead[0].copy()}
         if terminated:
             info["failure"] = "unstable" if unstable else "self_collision"
