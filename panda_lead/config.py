@@ -21,6 +21,7 @@ from .errors import UserError, check_typed_fields, did_you_mean
 OBS_FEATURES = {
     "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
     "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3, "tip_error": 3,
+    "tip_error_avg": 3,
 }
 # Each feature is divided by a fixed scale so that every input of the policy is of order one
 # (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
@@ -33,6 +34,10 @@ OBS_SCALE = {
     # mismatch of the two weights is a bias that grows with the position; observed directly,
     # at a 5 cm scale, a millimetre is 0.02 of an input.
     "tip_error": 0.05,
+    # A running average of the tip's error (EnvConfig.error_avg_time, clipped per axis at
+    # error_avg_clip): the slow bias a memoryless policy cannot see in one error sample, what
+    # a PID's integral term acts on. At a 1 cm scale a millimetre of bias is 0.1 of an input.
+    "tip_error_avg": 0.01,
 }
 # The observation layouts of the reference ladder (the presets build on them).
 OBS_12 = ("ee_pos", "ee_vel", "target_pos", "target_vel")
@@ -135,6 +140,12 @@ class EnvConfig:
     0 its home angle, +1 its upper limit, linear in between)."""
     max_joint_offset: float = 0.2
     """With action "joint": the joint-goal offset (rad) at action +-1."""
+    error_avg_time: float = field(default=0.3, metadata={"range": (0.01, 100.0)})
+    """Time constant (s) of the `tip_error_avg` observation: each step it moves dt/this of
+    the way towards the newest (clipped) tip error; 0 at the start of an episode."""
+    error_avg_clip: float = field(default=0.02, metadata={"range": (1e-4, 1.0)})
+    """Per-axis clip (m) of the tip error fed to `tip_error_avg`, so that the swing from the
+    home pose (tens of cm) does not fill the average for seconds."""
     max_peak_speed: float | None = None
     """Redraw training trajectories until their peak speed is at most this (m/s); None: any.
     Named trajectory seeds (test, evaluation) are never filtered."""

@@ -467,7 +467,7 @@ class ArmBatch:
             # a NaN fails both comparisons and stays, as numpy's maximum and minimum keep it
             # (one comprehension: cheaper than a loop of appends; lo < hi, so hi wins over lo).
             q = [hi if x > hi else lo if x < lo else x
-                 for x, lo, hi in zip(map(add, q, dq), self._lo_list, self._hi_list)]
+                 for x, lo, hi in zip(map(add, q, dq), self._lo_list, self._hi_list, strict=True)]
         return q
 
     def _kinematics_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -44,6 +44,11 @@ class LeadTask:
         self._features = [f for f, _, _ in self.layout]  # for step_one
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         self._error_observed = "tip_error" in self._features
+        # tip_error_avg: a running average of the clipped tip error (EnvConfig.error_avg_*),
+        # updated only when it is observed
+        self._avg_observed = "tip_error_avg" in self._features
+        self.err_avg = np.zeros((n, 3))
+        self._avg_rate, self._avg_clip = self.dt / c.error_avg_time, c.error_avg_clip
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
         # step_one's weights, signed as its terms use them (one unpack, not a dict lookup each)
         self._signed_w = (-self._w["distance"], self._w["tracking"], -self._w["action"],
@@ -105,6 +110,7 @@ class LeadTask:
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
+        self.err_avg[ids] = 0.0
         obs = self.observe(ids)
         if self._delayed:
             if self.config.random_delay:
@@ -150,6 +156,8 @@ class LeadTask:
                   "joint_vel": core.qvel, "prev_action": self.prev_action}
         if self._error_observed:
             source["tip_error"] = core.tip_pos - pos
+        if self._avg_observed:
+            source["tip_error_avg"] = self.err_avg
         for f, a, b in self.layout:
             raw[:, a:b] = source[f]
         if len(self._noisy):
@@ -173,7 +181,12 @@ class LeadTask:
         self.ee_vel /= self.dt
         self._prev_ee[:] = ee
         now = core.target()  # (pos, vel, acc) after the step: the distance and the observation
-        dist = _distance(ee - now[0])
+        err = ee - now[0]
+        dist = _distance(err)
+        if self._avg_observed:  # avg += rate * (clip(err) - avg), step_one's order
+            clip = self._avg_clip
+            self.err_avg += self._avg_rate * (np.minimum(np.maximum(err, -clip), clip)
+                                              - self.err_avg)
         unstable = core.unstable
         any_unstable = np.logical_or.reduce(unstable)
         terminated = (unstable | core.self_collision if self.config.terminate_on_collision
@@ -250,6 +263,11 @@ class LeadTask:
         t0, t1, t2 = target
         dx, dy, dz = e0 - t0, e1 - t1, e2 - t2
         dist = math.sqrt((dx * dx + dy * dy) + dz * dz)  # _distance() on Python floats
+        if self._avg_observed:  # step()'s update on Python floats (a NaN stays a NaN as there)
+            clip, rate = self._avg_clip, self._avg_rate
+            avg = [a + rate * ((-clip if x < -clip else clip if x > clip else x) - a)
+                   for a, x in zip(self.err_avg[0].tolist(), (dx, dy, dz), strict=True)]
+            self.err_avg[0] = avg
         terminated = unstable or (collision and c.terminate_on_collision)
         truncated = not terminated and step >= c.episode_steps
         counts = step * dt >= self._reward_from
@@ -278,6 +296,8 @@ class LeadTask:
         source = {"ee_pos": ee, "ee_vel": ee_vel, "target_pos": target,
                   "target_vel": path_vel[k], "target_acc": path_acc[k], "prev_action": values,
                   "tip_error": (dx, dy, dz)}
+        if self._avg_observed:
+            source["tip_error_avg"] = avg
         if self._joints_observed:
             source["joint_pos"], source["joint_vel"] = core.qpos[0].tolist(), core.qvel[0].tolist()
         raw = []

@@ -7,7 +7,7 @@
 #   v5        the headline configuration, 5 seeds
 #   v5_joint  v5 + the joint state (29-D), v5's reward: what the joint state alone buys
 #   climb     v5_stack (v5 + the last 3 observations): 3 seeds
-#   v5_decay, v5_err, v5_err_decay, v5_track, v5_prev   the climb's later steps, 3 seeds each
+#   v5_decay, v5_err, v5_err_decay, v5_err_avg_decay, v5_track, v5_prev   the climb's later steps, 3 seeds each
 #   v7, delayed, noisy   the side studies' trained policies at the presets' budget, 5 seeds
 #   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result)
 # The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
@@ -23,7 +23,7 @@ if [ "${1:-main}" = main ]; then
     --train-args="--env.obs-features ee_pos ee_vel target_pos target_vel target_acc joint_pos joint_vel"
   sweep --name climb --presets v5_stack --seeds 1 2 3
   # the climb, one change to v5 each, 3 seeds (2026-11-24)
-  for preset in v5_decay v5_err v5_err_decay v5_track v5_prev; do
+  for preset in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_track v5_prev; do
     sweep --name "$preset" --presets "$preset" --seeds 1 2 3
   done
   sweep --name v7 --presets v7 --seeds 1 2 3 4 5

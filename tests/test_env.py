@@ -100,6 +100,22 @@ def test_tip_error_is_the_tip_minus_the_target_at_its_scale():
         obs, *_ = e.step(np.array([0.3, -0.2, 0.1], dtype=np.float32))
 
 
+def test_tip_error_avg_is_a_running_average_of_the_clipped_error():
+    e = PandaLeadEnv(obs_features=("tip_error_avg",), error_avg_time=0.2, error_avg_clip=0.02)
+    obs, _ = e.reset(seed=0, options={"traj_seed": 2})
+    np.testing.assert_array_equal(obs, 0.0)  # nothing averaged before the first step
+    rate, expected = e.core.dt / 0.2, np.zeros(3)
+    for k in range(40):  # the swing from the home pose: the clip bites, then lets go
+        obs, *_ = e.step(np.array([0.2, 0.1, -0.3], dtype=np.float32))
+        err = e.core.tip_pos[0] - e.core.target()[0][0]
+        expected = expected + rate * (np.clip(err, -0.02, 0.02) - expected)
+        np.testing.assert_allclose(obs * OBS_SCALE["tip_error_avg"], expected, rtol=1e-5,
+                                   atol=1e-9)
+    assert np.abs(expected).max() > 0.005  # it moved: not a zero that passes anyway
+    e.reset(seed=0, options={"traj_seed": 2})
+    assert not e.task.err_avg.any()  # a reset forgets it
+
+
 def test_lead_is_scaled_and_clipped():
     e = PandaLeadEnv(max_lead=0.1)
     e.reset(seed=0, options={"traj_seed": 1})

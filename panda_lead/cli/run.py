@@ -33,7 +33,8 @@ class Args:
     ILC ORACLE (replays each trajectory and learns its lead from the errors it saw: a ceiling,
     not a controller; started from the --model's lead by default, see --ilc)."""
     model: Path | None = None
-    """Policy zip with its sidecar (default: archive/v5_5m.zip, the headline model: models.DEFAULT_MODEL)."""
+    """Policy zip with its sidecar (default: the headline model, models.DEFAULT_MODEL, in
+    ./archive or the archive shipped with the package)."""
     tau: float | None = None
     """Look-ahead of the analytic lead in seconds (default: the tuned value)."""
     ilc: ILCConfig = field(default_factory=ILCConfig)

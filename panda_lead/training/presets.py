@@ -71,6 +71,11 @@ PRESETS.update([
     _preset("v5_err_decay", "v5_err with the learning rate decayed linearly to 0 (the climb's "
             "two changes that each helped, together)",
             env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear"),
+    # + a running average of the tip error (0.3 s, clipped at 2 cm): the slow bias that one
+    # error sample cannot show, what a PID's integral term acts on (config.OBS_SCALE).
+    _preset("v5_err_avg_decay", "v5_err_decay + the tip error's running average observed "
+            "(21-D)", env=dict(obs_features=OBS_15 + ("tip_error", "tip_error_avg")),
+            lr_schedule="linear"),
     _preset("v5_decay", "v5 with the learning rate decayed linearly to 0",
             env=dict(obs_features=OBS_15), lr_schedule="linear"),
     # v7's reward without v7's joint state and termination: -distance plus exp(-distance / 5 cm),
