@@ -105,7 +105,7 @@ def test_tip_error_avg_is_a_running_average_of_the_clipped_error():
     obs, _ = e.reset(seed=0, options={"traj_seed": 2})
     np.testing.assert_array_equal(obs, 0.0)  # nothing averaged before the first step
     rate, expected = e.core.dt / 0.2, np.zeros(3)
-    for k in range(40):  # the swing from the home pose: the clip bites, then lets go
+    for _ in range(40):  # the swing from the home pose: the clip bites, then lets go
         obs, *_ = e.step(np.array([0.2, 0.1, -0.3], dtype=np.float32))
         err = e.core.tip_pos[0] - e.core.target()[0][0]
         expected = expected + rate * (np.clip(err, -0.02, 0.02) - expected)
