@@ -9,7 +9,8 @@
 #   climb     v5_stack (v5 + the last 3 observations): 3 seeds
 #   v5_decay, v5_err, v5_err_decay, v5_err_avg_decay, v5_track, v5_prev   the climb's later steps, 3 seeds each
 #   v7, delayed, noisy   the side studies' trained policies at the presets' budget, 5 seeds
-#   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result)
+#   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result),
+#             and ikfree_50m the same to 50M steps
 # The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
 # curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side.
 set -euo pipefail
@@ -30,6 +31,8 @@ if [ "${1:-main}" = main ]; then
   sweep --name delayed_5m --presets delayed --seeds 1 2 3 4 5   # the latency study's policy
   sweep --name noisy_5m --presets noisy --seeds 1 2 3 4 5       # the noise study's policy
   sweep --name ikfree --presets ikfree --seeds 1
+  # the IK-free policy as long as the reference work thought it needs (the later flags win)
+  sweep --name ikfree_50m --presets ikfree --seeds 1 --timesteps 50000000 --eval-freq 250000
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
   sweep --name noisy --presets noisy --seeds 1 2 3
