@@ -9,6 +9,9 @@
 |        |                             |                        | where the classical rollout collides |
 | train  | 10^7 .. 2^31-1, env i's own | drawn (or restricted)  | training: env i of training seed s   |
 |        | stream SeedSequence(s)[i]   |                        | draws from its own spawned stream    |
+| distill| 3000000..3099999            | drawn from the seed    | studies/distill.py's teacher data:   |
+|        | (training seed k: its own   |                        | the ILC oracle's leads to regress on |
+|        | slice of DISTILL_SLICE)     |                        |                                      |
 """
 
 from __future__ import annotations
@@ -30,6 +33,10 @@ TUNE_SEEDS = tuple(range(800_000, 800_050))
 # More trajectories from the test distribution, for a study that needs a rare subset of them
 # (self-collision: about 3% of trajectories). Never trained, tuned or selected on.
 POOL_SEEDS = range(1_000_000, 1_010_000)
+# Trajectories the distilled student learns from (studies/distill.py): training seed k (1..10)
+# draws from its own slice DISTILL_SEEDS[(k - 1) * DISTILL_SLICE : k * DISTILL_SLICE].
+DISTILL_SEEDS = range(3_000_000, 3_100_000)
+DISTILL_SLICE = 10_000
 TRAIN_SEED_LOW, TRAIN_SEED_HIGH = 10_000_000, 2**31 - 1
 # One rollout file per seed: a range larger than this is a typo (0-99999999 would be 100M files).
 MAX_SEEDS = 100_000
