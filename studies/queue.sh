@@ -24,7 +24,8 @@ if [ "${1:-main}" = main ]; then
     --train-args="--env.obs-features ee_pos ee_vel target_pos target_vel target_acc joint_pos joint_vel"
   sweep --name climb --presets v5_stack --seeds 1 2 3
   # the climb, one change to v5 each, 3 seeds (2026-11-24)
-  for preset in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_track v5_prev; do
+  for preset in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track \
+      v5_prev; do
     sweep --name "$preset" --presets "$preset" --seeds 1 2 3
   done
   sweep --name v7 --presets v7 --seeds 1 2 3 4 5

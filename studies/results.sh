@@ -10,8 +10,8 @@ runs() { uv run studies/runs.py "$@"; }
 if [ "${1:-all}" = all ]; then
   # 1. One committed summary per training run (config, curve, best model's hash, its metrics
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
-  for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay v5_track \
-      v5_prev v7 delayed_5m noisy_5m; do
+  for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
+      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -f results/runs/baselines.json ] || runs baselines
@@ -48,13 +48,15 @@ done
 runs rates --study v5 > results/rates_500hz.md
 runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
 [ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
-for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_track v5_prev v7 delayed_5m noisy_5m; do
+for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \
+    v7 delayed_5m noisy_5m; do
   [ -d "results/runs/$study" ] || continue
   runs report --study "$study" > "results/spread_$study.md"
   runs compare --study "$study" --against-study v5 > "results/${study}_vs_v5.md"
 done
 # the climb's steps against the step before them (each changes one thing)
-for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay"; do
+for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
+    "v5_err_decay_smooth v5_err_decay"; do
   set -- $pair
   [ -d "results/runs/$1" ] && [ -d "results/runs/$2" ] || continue
   runs compare --study "$1" --against-study "$2" > "results/$1_vs_$2.md"

@@ -76,6 +76,14 @@ PRESETS.update([
     _preset("v5_err_avg_decay", "v5_err_decay + the tip error's running average observed "
             "(21-D)", env=dict(obs_features=OBS_15 + ("tip_error", "tip_error_avg")),
             lr_schedule="linear"),
+    # v5_err_decay's lead chatters step to step (jerk twice v5's): its previous action
+    # observed and a small penalty on changing it (0.1: a fast circle's lead turns ~0.13 of
+    # the action range per step and pays ~0.002, a 1.7 cm chatter pays ~0.005, against ~0.01
+    # of distance term per cm of error).
+    _preset("v5_err_decay_smooth", "v5_err_decay + prev_action observed + action-change "
+            "penalty 0.1 (21-D)", env=dict(obs_features=OBS_15 + ("tip_error", "prev_action"),
+                                           w_action_change=0.1),
+            lr_schedule="linear"),
     _preset("v5_decay", "v5 with the learning rate decayed linearly to 0",
             env=dict(obs_features=OBS_15), lr_schedule="linear"),
     # v7's reward without v7's joint state and termination: -distance plus exp(-distance / 5 cm),
