@@ -4,6 +4,7 @@
     uv run studies/distill.py run --seed 2 --rounds 3 --first 600 --per-round 400
     uv run studies/distill.py archive --name distill        # the chosen seed -> archive/distill.zip
     uv run studies/distill.py probe                         # does the observation determine the lead?
+    uv run studies/distill.py diagnose --model archive/distill.zip  # where the student loses
     uv run studies/runs.py report --study distill           # then, from git alone:
     uv run studies/runs.py compare --study distill --against-study v5_err
 
@@ -71,9 +72,10 @@ OBS_ONLY = ("obs_features", "obs_stack", "obs_noise", "obs_delay")
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["run", "archive", "probe"]]
+    command: tyro.conf.Positional[Literal["run", "archive", "probe", "diagnose"]]
     """run: one training seed, its run folder and summary; archive: the chosen seed's model;
-    probe: students of other observations and sizes on the same teacher data."""
+    probe: students of other observations and sizes on the same teacher data; diagnose: where
+    a student (--model) loses against its teacher."""
     seed: int = 1
     """Training seed k (1..10): its distillation seeds, its network's initialisation."""
     rounds: int = 3
@@ -113,7 +115,9 @@ class Args:
     nthread: int = 0
     """MuJoCo batch threads (0: its default)."""
     probe_n: int = 200
-    """probe: teacher trajectories."""
+    """probe, diagnose: teacher trajectories."""
+    model: Path | None = None
+    """diagnose: the student."""
 
 
 # --- pieces (imported by tests/test_distill.py) ----------------------------------------------
@@ -461,14 +465,67 @@ def probe(args: Args, log=print) -> None:
                 f"{np.sqrt(np.mean(np.sum(res ** 2, axis=-1))):.2f} | {const.mean():.2f} |")
 
 
+def diagnose(args: Args, log=print) -> None:
+    import torch
+
+    from panda_lead import controllers
+    from panda_lead.core import control_dt
+    from panda_lead.ilc import learn_leads, replay_controller, smooth
+    from panda_lead.models import load_policy
+    from panda_lead.rollout import record_many
+    from panda_lead.seeds import DISTILL_SEEDS, DISTILL_SLICE
+
+    if args.model is None:
+        raise UserError("diagnose needs --model (a student's zip)")
+    policy, env_dict, _ = load_policy(args.model)
+    config = student_config(env_dict["obs_features"], args.steps)
+    seeds = list(range(DISTILL_SEEDS.stop - DISTILL_SLICE, DISTILL_SEEDS.stop))[:args.probe_n]
+    leads, hist = learn_leads(config, seeds, None, args.ilc,
+                              init_from_model(args.init_model, config), nthread=args.nthread)
+    obs, act, errs, ok = record_pairs(config, leads, seeds, args.nthread)
+    seeds_ok = [s for s, good in zip(seeds, ok, strict=True) if good]
+    with torch.no_grad():
+        pred = actor_mean(policy, torch.as_tensor(obs.reshape(-1, obs.shape[-1]))).numpy()
+    pred = np.clip(pred.reshape(act.shape), -1, 1)
+    k0 = int(round(0.5 / control_dt()))
+
+    def settled(act_fn):
+        rs = record_many(config, act_fn, seeds_ok)
+        return np.array([100 * r.error[k0:].mean() for r in rs]), rs
+
+    m = config.max_lead
+    rows = {"oracle's leads replayed": settled(replay_controller(leads[ok], seeds_ok, m))[0],
+            "student, closed loop": settled(controllers.make_policy(policy))[0],
+            "student's leads on the oracle's states, open loop":
+                settled(replay_controller(pred * m, seeds_ok, m))[0],
+            "oracle's leads smoothed over 11 steps":
+                settled(replay_controller(smooth(leads[ok], 11), seeds_ok, m))[0]}
+    log(f"diagnose {args.model} on {len(seeds_ok)} fresh trajectories ({seeds[0]}-{seeds[-1]}); "
+        f"oracle {hist[0]:.3f} -> {hist[-1]:.3f} cm (episode mean)\n")
+    log("| played | settled error, mean [median] (cm) |\n|---|---|")
+    for label, v in rows.items():
+        log(f"| {label} | {v.mean():.2f} [{np.median(v):.2f}] |")
+    res = (pred - act)[:, k0:] * m * 100  # cm, the student's lead error on the oracle's states
+    const = res.mean(axis=1, keepdims=True)
+    slow = smooth(res, 11) - const
+    fast = res - smooth(res, 11)
+    rms = lambda x: float(np.sqrt(np.mean(np.sum(x ** 2, axis=-1))))  # noqa: E731
+    log(f"\nthe student's lead error on the oracle's states, t >= 0.5 s (RMS of the 3-D error, "
+        f"cm): all {rms(res):.2f} = constant per trajectory {rms(np.broadcast_to(const, res.shape)):.2f}"
+        f" + slow (11-step average less the constant) {rms(slow):.2f} + fast {rms(fast):.2f}; "
+        f"the oracle's leads themselves: RMS {rms(act[:, k0:] * m * 100):.2f}, their fast part "
+        f"{rms((act - smooth(act, 11))[:, k0:] * m * 100):.2f}")
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     check_plain_name(args.study, "--study")
     if args.command == "archive":
         archive(args)
         return
-    if args.command == "probe":
-        probe(args, log=lambda s: print(s, flush=True))
+    if args.command in ("probe", "diagnose"):
+        {"probe": probe, "diagnose": diagnose}[args.command](args, log=lambda s: print(s,
+                                                                                      flush=True))
         return
     path = run_summaries.RUNS_DIR / args.study / f"seed_{args.seed}.json"
     if args.summarize and path.exists() and not args.force:
