@@ -7,6 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl}
 runs() { uv run studies/runs.py "$@"; }
+H=${HEADLINE:-v5_err_decay}  # the headline study and its archived model's name
 if [ "${1:-all}" = all ]; then
   # 1. One committed summary per training run (config, curve, best model's hash, its metrics
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
@@ -15,24 +16,31 @@ if [ "${1:-all}" = all ]; then
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -f results/runs/baselines.json ] || runs baselines
-  # 2. The archived headline model: the v5 run with the lowest evaluation-set error.
+  # 2. The archived models: v5's chosen run (v5_5m) and the headline, the climb's best study
+  #    (the lowest evaluation-set error of all, docs/questions.md 6), each its study's chosen
+  #    run (the lowest evaluation-set error, ties to the lower seed).
   [ -f archive/v5_5m.zip ] || runs choose --study v5 --archive-as v5_5m --runs sweeps/v5/runs
-  # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory) on the first 200.
+  [ -f "archive/$H.zip" ] || runs choose --study "$H" --archive-as "$H" --runs "sweeps/$H/runs"
+  # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory, started from the
+  #    headline's lead) on the first 200.
   [ -d rollouts/classical ] || uv run ikpd.py --seeds 0-999 --prefix classical
   [ -d rollouts/analytic ] || uv run ikpd.py --seeds 0-999 --prefix analytic --controller analytic
-  [ -d rollouts/v5_5m ] || uv run eval.py --seeds 0-999 --prefix v5_5m --model archive/v5_5m.zip
-  [ -d rollouts/indep_v5 ] || uv run eval.py --seeds 0-999 --prefix indep_v5 --model archive/indep_v5.zip
-  [ -d rollouts/ilc ] || uv run ikpd.py --controller ilc --seeds 0-199 --prefix ilc
+  for m in "$H" v5_5m indep_v5; do
+    [ -d "rollouts/$m" ] || uv run eval.py --seeds 0-999 --prefix "$m" --model "archive/$m.zip"
+  done
+  [ -d rollouts/ilc ] || uv run ikpd.py --controller ilc --seeds 0-199 --prefix ilc \
+    --model "archive/$H.zip"
   # 4. The paired tables and the headline figure.
-  for pair in "classical analytic" "classical v5_5m" "analytic v5_5m" "indep_v5 v5_5m"; do
+  for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 v5_5m"; do
     set -- $pair
     uv run metrics.py --prefix-a "$1" --prefix-b "$2" --breakdown --markdown \
       | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
   done
-  uv run metrics.py --prefix-a analytic --prefix-b v5_5m --oracle ilc --markdown \
-    > results/v5_5m_vs_analytic_with_oracle.md
-  uv run metrics.py --headline classical analytic v5_5m ilc --force \
-    --labels Classical Analytic "RL lead (v5_5m)" "ILC oracle" --plot results/headline.png
+  uv run metrics.py --prefix-a analytic --prefix-b "$H" --oracle ilc --markdown \
+    > "results/${H}_vs_analytic_with_oracle.md"
+  uv run metrics.py --headline classical analytic v5_5m "$H" ilc --force \
+    --labels Classical Analytic "RL lead (v5_5m)" "RL lead ($H)" "ILC oracle" \
+    --plot results/headline.png
   # 5. The side studies under the evaluation harness (levels replace a model's own settings).
   uv run studies/robustness.py --question delay --force \
     --models archive/indep_v5.zip archive/delayed.zip --seeds 0-499
@@ -45,7 +53,8 @@ fi
 for study in v5 v5_joint climb; do
   [ -d "results/runs/$study" ] && runs report --study "$study" > "results/spread_$study.md"
 done
-runs rates --study v5 > results/rates_500hz.md
+runs rank > results/rank.md  # the headline rule, applied to every study (selection data only)
+runs rates --study "$H" > results/rates_500hz.md
 runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
 [ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
 for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \

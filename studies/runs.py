@@ -7,6 +7,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py choose --study v5 [--archive-as indep_v5 --runs sweeps/v5/runs]
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
+    uv run studies/runs.py rank                      # which study's model is the headline
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
@@ -18,6 +19,9 @@ files.
 
 The choice rule (`choose`): the run with the lowest best evaluation-set error (never a test
 seed); a tie (equal to 0.01 cm, the printed precision) goes to the lower training seed.
+The headline rule (`rank`): among studies of at least 3 seeds, the one whose seeds' best
+evaluation-set errors have the lowest mean (one lucky seed on 15 evaluation trajectories does
+not make a configuration better); its chosen run is the headline model.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ KEYS = ("mean_err", "settled_err", "jerk_rms")
 @dataclass
 class Args:
     command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose",
-                                          "compare", "rates"]]
+                                          "compare", "rates", "rank"]]
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
@@ -291,10 +295,34 @@ def choose(args: Args) -> None:
         print(f"archived {path}")
 
 
+def rank(args: Args) -> None:
+    """Every study with committed summaries, ordered by the mean of its seeds' best
+    evaluation-set errors (selection data only; test numbers are shown, never used)."""
+    rows = []
+    for folder in sorted(p for p in RUNS_DIR.iterdir() if p.is_dir()):
+        runs = load_study(folder.name)
+        evals = [s["best"]["mean_error_cm"] for s in runs]
+        rows.append((float(np.mean(evals)), folder.name, runs, evals))
+    rows.sort(key=lambda r: r[0])
+    eligible = [r for r in rows if len(r[2]) >= 3]
+    print("Studies by the mean of their seeds' best evaluation-set error (15 trajectories, "
+          "never a test seed); the headline is the first with >= 3 seeds, its chosen run the "
+          "model. `uv run studies/runs.py rank`\n")
+    print("| study | seeds | best eval per seed (cm) | mean | chosen seed | test mean (cm) | "
+          "test settled (cm) |")
+    print("|---|---|---|---|---|---|---|")
+    for mean, name, runs, evals in rows:
+        c = choose_run(runs)
+        mark = " **headline**" if eligible and name == eligible[0][1] else ""
+        print(f"| {name}{mark} | {len(runs)} | {', '.join(f'{e:.2f}' for e in evals)} | "
+              f"{mean:.2f} | {c['seed']} | {np.mean(c['test']['mean_err']):.2f} | "
+              f"{np.mean(c['test']['settled_err']):.2f} |")
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     {"summarize": summarize, "baselines": baselines, "report": report,
-     "choose": choose, "compare": compare_studies, "rates": rates}[args.command](args)
+     "choose": choose, "compare": compare_studies, "rates": rates, "rank": rank}[args.command](args)
 
 
 if __name__ == "__main__":
