@@ -31,7 +31,8 @@ if [ "${1:-all}" = all ]; then
   [ -d rollouts/ilc ] || uv run ikpd.py --controller ilc --seeds 0-199 --prefix ilc \
     --model "archive/$H.zip"
   # 4. The paired tables and the headline figure.
-  for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 v5_5m"; do
+  for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 $H" \
+      "indep_v5 v5_5m"; do
     set -- $pair
     uv run metrics.py --prefix-a "$1" --prefix-b "$2" --breakdown --markdown \
       | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
