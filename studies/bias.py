@@ -7,8 +7,8 @@ For each rollout, over the settled window (t >= 0.5 s, after the swing from the 
 - bias: |mean of (tip - target)|, the part of the error that a constant offset of the lead
   for the whole trajectory would cancel (an integrator's job);
 - wobble: the mean of |e - e smoothed over 11 steps (0.11 s)|, the fast part of the error.
-Printed per shape and overall: the mean over rollouts, the median in brackets (cm). It reads
-rollout files only; every set must hold the same seeds.
+Printed per shape and overall: the mean over rollouts, the median in brackets (cm), on the
+seeds every set holds. It reads rollout files only.
 """
 
 from __future__ import annotations
@@ -49,12 +49,12 @@ def parts(r) -> tuple[float, float, float]:
 def main(args: Args) -> None:
     from panda_lead.metrics.pairing import load_set
 
-    sets = {p: load_set(p, args.root) for p in args.prefixes}
-    seeds = sorted(next(iter(sets.values())))
-    for p, s in sets.items():
-        if sorted(s) != seeds:
-            raise UserError(f"rollouts/{p} holds other seeds than rollouts/{args.prefixes[0]}")
-    shapes = sorted({r.shape for r in next(iter(sets.values())).values()})
+    loaded = {p: load_set(p, args.root) for p in args.prefixes}
+    seeds = sorted(set.intersection(*(set(s) for s in loaded.values())))
+    if not seeds:
+        raise UserError(f"the sets {', '.join(args.prefixes)} share no seed")
+    sets = {p: {k: s[k] for k in seeds} for p, s in loaded.items()}
+    shapes = sorted({r.shape for r in sets[args.prefixes[0]].values()})
     print(f"settled window t >= {SETTLE_S} s; {len(seeds)} seeds; mean over rollouts [median], cm\n")
     print("| shape | n | set | settled | bias | wobble |")
     print("|---|---|---|---|---|---|")

@@ -6,6 +6,7 @@ import importlib.util
 import json
 import sys
 
+import numpy as np
 import pytest
 from conftest import ROOT
 
@@ -47,3 +48,26 @@ def test_the_headline_is_the_lowest_mean_evaluation_error_of_a_study_of_three_se
     names = [line.split("|")[1].strip() for line in lines[1:]]
     # ordered by mean evaluation error, the headline never chosen on test numbers
     assert names == ["single", "steady **headline**", "lucky"]
+
+
+def test_bias_py_splits_a_known_offset_from_a_known_wobble(monkeypatch):
+    spec = importlib.util.spec_from_file_location("bias_study", ROOT / "studies" / "bias.py")
+    bias = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, bias)
+    spec.loader.exec_module(bias)
+    from panda_lead.rollout import Rollout
+
+    n = 500
+    t = 0.01 * np.arange(1, n + 1)
+    target = np.stack([0.3 + 0.1 * np.cos(t), 0.1 * np.sin(t), 0.5 + 0 * t], axis=1)
+    wobble = 0.002 * (-1.0) ** np.arange(n)  # 2 mm, flipping sign every step
+    ee = target + np.array([0.01, 0.0, 0.0]) + np.stack([0 * t, wobble, 0 * t], axis=1)
+    z3 = np.zeros((n, 3))
+    r = Rollout(t=t, ee_pos=ee, target_pos=target, target_vel=z3, target_acc=z3, lead=z3,
+                qpos=np.zeros((n, 7)), qvel=np.zeros((n, 7)), self_collision=np.zeros(n, bool),
+                collision_depth=np.zeros(n), reachable=np.ones(n, bool),
+                meta={"seed": 0, "shape": "circle"})
+    settled, offset, fast = bias.parts(r)
+    assert offset == pytest.approx(1.0, abs=1e-3)  # cm: the constant 1 cm offset
+    assert fast == pytest.approx(0.2, rel=0.1)  # cm: the 2 mm step-to-step wobble
+    assert settled == pytest.approx(np.hypot(1.0, 0.2), rel=1e-3)
