@@ -89,7 +89,8 @@ class Args:
     ilc: ILCConfig = field(default_factory=ILCConfig)
     """The oracle (defaults: the tuned ones)."""
     init_model: Path | None = None
-    """Round 1's oracle starts from this model's lead (default the headline, archive/v5_5m)."""
+    """Round 1's oracle starts from this model's lead (default archive/v5_5m, the headline when
+    the distill runs were made)."""
     obs_features: tuple[str, ...] = STUDENT_FEATURES
     """The student's observation."""
     epochs: int = 30
