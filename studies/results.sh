@@ -21,6 +21,8 @@ if [ "${1:-all}" = all ]; then
   #    run (the lowest evaluation-set error, ties to the lower seed).
   [ -f archive/v5_5m.zip ] || runs choose --study v5 --archive-as v5_5m --runs sweeps/v5/runs
   [ -f "archive/$H.zip" ] || runs choose --study "$H" --archive-as "$H" --runs "sweeps/$H/runs"
+  S=v5_err_decay_smooth  # the smooth alternative (docs/questions.md 6, the jerk)
+  [ -f "archive/$S.zip" ] || runs choose --study "$S" --archive-as "$S" --runs "sweeps/$S/runs"
   # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory, started from the
   #    headline's lead) on the first 200.
   [ -d rollouts/classical ] || uv run ikpd.py --seeds 0-999 --prefix classical
