@@ -43,6 +43,19 @@ class Args:
     median (docs/performance.md, "The single env")."""
 
 
+def print_pairs(count: int, label: str, pair) -> None:
+    """``count`` back-to-back (raw physics us, step us) pairs from ``pair()``: each ratio, then
+    their median (steadier than one pair on a shared machine, whose speed drifts)."""
+    ratios = []
+    for _ in range(count):
+        physics, step = pair()
+        ratios.append(step / physics)
+        print(f"raw physics {physics:.1f} us, {label} {step:.1f} us: {step / physics:.2f}x",
+              flush=True)
+    print(f"median of {len(ratios)} pairs: {statistics.median(ratios):.2f}x physics "
+          f"(range {min(ratios):.2f}-{max(ratios):.2f})")
+
+
 def median_time(fn, repeats: int) -> float:
     times = []
     for _ in range(repeats):
@@ -213,25 +226,11 @@ def main() -> None:
     secs = 0.5 if args.quick else 2.0
     rows: list[tuple[str, str]] = []
     if args.single_pairs:
-        ratios = []
-        for _ in range(args.single_pairs):
-            physics, single = bench_physics(400, 3), bench_single_env(400, 3)
-            ratios.append(single / physics)
-            print(f"raw physics {physics:.1f} us, single env step via gymnasium.make "
-                  f"{single:.1f} us: {single / physics:.2f}x", flush=True)
-        print(f"median of {len(ratios)} pairs: {statistics.median(ratios):.2f}x physics "
-              f"(range {min(ratios):.2f}-{max(ratios):.2f})")
-        return
+        return print_pairs(args.single_pairs, "single env step via gymnasium.make",
+                           lambda: (bench_physics(400, 3), bench_single_env(400, 3)))
     if args.step_pairs:
-        ratios = []
-        for _ in range(args.step_pairs):
-            physics, cpu = bench_physics(n, reps), bench_batched(64, 1, 200, reps)[0]
-            ratios.append(cpu / physics)
-            print(f"raw physics {physics:.1f} us, batched env step (64 envs, 1 thread) "
-                  f"{cpu:.1f} us: {cpu / physics:.2f}x", flush=True)
-        print(f"median of {len(ratios)} pairs: {statistics.median(ratios):.2f}x physics "
-              f"(range {min(ratios):.2f}-{max(ratios):.2f})")
-        return
+        return print_pairs(args.step_pairs, "batched env step (64 envs, 1 thread)",
+                           lambda: (bench_physics(n, reps), bench_batched(64, 1, 200, reps)[0]))
 
     def row(name: str, value: str) -> None:
         rows.append((name, value))
