@@ -8,6 +8,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
+    uv run studies/runs.py curve --studies ikfree_50m v5_err_decay --plot results/ikfree_curve.png
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
@@ -45,7 +46,7 @@ KEYS = ("mean_err", "settled_err", "jerk_rms")
 @dataclass
 class Args:
     command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose",
-                                          "compare", "rates", "rank"]]
+                                          "compare", "rates", "rank", "curve"]]
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
@@ -63,6 +64,10 @@ class Args:
     """Replace existing summaries, baselines or an archived name."""
     bootstrap: int = 10000
     """Bootstrap resamples for the CIs."""
+    studies: list[str] = field(default_factory=list)
+    """curve: the studies whose evaluation curves are drawn (every seed of each)."""
+    plot: Path | None = None
+    """curve: the figure's path (PNG)."""
 
 
 def _metrics_on_test(ctrl) -> dict[str, list[float]]:
@@ -319,10 +324,51 @@ def rank(args: Args) -> None:
               f"{np.mean(c['test']['settled_err']):.2f} |")
 
 
+def curve(args: Args) -> None:
+    """Evaluation-set error against training steps (log scale) for every seed of each study,
+    from the committed summaries, with the classical and analytic references on the same
+    evaluation set (recomputed here: 15 episodes each)."""
+    from panda_lead.config import EnvConfig
+    from panda_lead.controllers import classical, make_analytic
+    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
+    from panda_lead.training.evaluation import evaluate
+
+    if not args.studies or args.plot is None:
+        raise UserError("curve needs --studies NAME [NAME ...] and --plot FILE.png")
+    studies = {name: load_study(name) for name in args.studies}
+    steps = {s["train_config"]["eval_steps"] for runs in studies.values() for s in runs}
+    if len(steps) != 1:
+        raise UserError(f"the studies were evaluated on episodes of different lengths: {steps}")
+    (eval_steps,) = steps
+    refs = {name: evaluate(ctrl, EnvConfig(), eval_steps)["mean_error_cm"]
+            for name, ctrl in (("classical", classical), ("analytic lead", make_analytic()))}
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.8), constrained_layout=True)
+    colours = colours_for(list(studies))
+    for name, runs in studies.items():
+        for i, s in enumerate(runs):
+            x, y = np.array(s["eval_curve"], dtype=float).T
+            ax.plot(x, y, color=colours[name], lw=1, alpha=0.8,
+                    label=f"{name} ({len(runs)} seed{'s' * (len(runs) > 1)})" if i == 0 else None)
+    for (name, cm), style in zip(refs.items(), ("--", ":"), strict=True):
+        ax.axhline(cm, color="grey", ls=style, lw=1, label=f"{name} ({cm:.2f} cm)")
+    ax.set(xscale="log", yscale="log", xlabel="training steps",
+           ylabel="evaluation-set mean error (cm)",
+           title="Evaluation curves (15 evaluation trajectories, never a test seed)")
+    ticks = [t for t in (1, 1.5, 2, 3, 4, 6, 10, 20, 40) if ax.get_ylim()[0] <= t <= ax.get_ylim()[1]]
+    ax.set_yticks(ticks, [f"{t:g}" for t in ticks])
+    ax.minorticks_off()  # the log axis's own minor labels (2 x 10^0 ...) would overprint them
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    print(f"wrote {save_figure(fig, args.plot)}")
+    for name, cm in refs.items():
+        print(f"{name}: {cm:.2f} cm on the evaluation set")
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
-    {"summarize": summarize, "baselines": baselines, "report": report,
-     "choose": choose, "compare": compare_studies, "rates": rates, "rank": rank}[args.command](args)
+    {"summarize": summarize, "baselines": baselines, "report": report, "choose": choose,
+     "compare": compare_studies, "rates": rates, "rank": rank, "curve": curve}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -71,3 +71,20 @@ def test_bias_py_splits_a_known_offset_from_a_known_wobble(monkeypatch):
     assert offset == pytest.approx(1.0, abs=1e-3)  # cm: the constant 1 cm offset
     assert fast == pytest.approx(0.2, rel=0.1)  # cm: the 2 mm step-to-step wobble
     assert settled == pytest.approx(np.hypot(1.0, 0.2), rel=1e-3)
+
+
+def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes(
+        runs, tmp_path, capsys):
+    for study, steps in (("a", 100), ("b", 100), ("other", 200)):
+        (tmp_path / study).mkdir()
+        summary = {"seed": 1, "train_config": {"eval_steps": steps},
+                   "eval_curve": [[50_000, 9.0], [100_000, 5.0], [150_000, 4.0]]}
+        (tmp_path / study / "seed_1.json").write_text(json.dumps(summary))
+    plot = tmp_path / "curve.png"
+    runs.curve(runs.Args(command="curve", studies=["a", "b"], plot=plot))
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    refs = dict(line.split(": ") for line in capsys.readouterr().out.splitlines()[1:])
+    classical, analytic = (float(refs[k].split()[0]) for k in ("classical", "analytic lead"))
+    assert analytic < classical  # the analytic lead leads the target: it tracks better
+    with pytest.raises(runs.UserError, match="different lengths"):  # not one evaluation set
+        runs.curve(runs.Args(command="curve", studies=["a", "other"], plot=plot))
