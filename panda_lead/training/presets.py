@@ -104,6 +104,13 @@ PRESETS.update([
     # sees the joint state it must act on (29-D), v5's reward.
     _preset("ikfree", "no IK: the action is the 7 joint goals (29-D observation, v5's reward)",
             env=dict(obs_features=OBS_29, action="joint_target")),
+    # At a constant 1e-3 the ikfree run to 50M came apart after ~10M steps (PPO's KL per
+    # update grew tenfold as the policy's std shrank): the long run takes the climb's decay,
+    # and the tip error that the headline observes (docs/questions.md 7).
+    _preset("ikfree_err_decay", "ikfree + the tip error observed (32-D) and the learning rate "
+            "decayed linearly to 0: the headline's two climb changes, for the long run",
+            env=dict(obs_features=OBS_29 + ("tip_error",), action="joint_target"),
+            lr_schedule="linear"),
 ])
 
 
