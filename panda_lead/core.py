@@ -145,7 +145,11 @@ _UNSTABLE_WARNINGS = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
                                        mujoco.mjtWarning.mjWARN_BADQACC,
                                        mujoco.mjtWarning.mjWARN_BADCTRL)]
 _unstable_of = itemgetter(*_UNSTABLE_WARNINGS)  # those four of a list of all the counters
+_POSITIVE = (0.0).__lt__  # x > 0 as a function (False for a NaN, as the comparison)
 _TRUE1, _FALSE1 = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)  # (copied, never handed out)
+# What _substeps_one saves before a control step, to replay it on the rare path: every input
+# of mj_step (time, qpos, qvel, warm start, ctrl, applied forces, mocap, sensor history, ...).
+_SAVED_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 
 
 try:  # the gufunc np.linalg.solve calls, which solves each matrix of a stack with LAPACK
@@ -240,6 +244,19 @@ class ArmBatch:
             self._pull_flat = self._pull_col.reshape(-1)
             self._steps = np.zeros((2, N_JOINTS, 1))
             self._steps_flat = self._steps.reshape(-1)
+            # For _substeps_one: the state saved before each control step; the warning
+            # counters with their last-info words, as one int32 view of MuJoCo's
+            # {lastinfo, number} records (saved and compared as bytes); the sensor history
+            # (assets/scene.xml: nsample = the substeps), used when it holds one control step.
+            self._saved = np.zeros(mujoco.mj_stateSize(m, _SAVED_STATE))
+            lastinfo = d.warning.lastinfo
+            self._warning_raw = np.lib.stride_tricks.as_strided(
+                lastinfo, (2 * len(lastinfo),), (lastinfo.itemsize,))
+            self._history = d.history
+            nsample, adr = m.sensor_history[:, 0], m.sensor_historyadr
+            self._history_rows = bool((nsample == self.substeps).all()) and m.nsensor == 2
+            if self._history_rows:  # where each contact sensor's values start in d.history
+                self._history_at = [int(a) + 2 + int(k) for a, k in zip(adr, nsample, strict=True)]
         else:
             self._data = None
             self.batch = b = mujoco.batch.Batch(m, nsim=n, nthread=nthread, persistent=True)
@@ -583,11 +600,10 @@ class ArmBatch:
         q = self._ik_list(target, None, self.ik_config.iters)
         self._ctrl_row[:] = q
         self.q_goal = self._ctrl_goal.copy()  # np.array([q]): the same float64s, cheaper
-        rows, counters = self._physics_rows(self.substeps)
-        self._end_of_step_kinematics()
+        found, floor = self._substeps_one()
         self.step_count[0] = k + 1
         self._mocap_row[:] = path[min(k + 1, last)]
-        return self._flags_one(rows, counters)
+        return self._flags_lean(found, floor)
 
     def _flags(self, sensors: np.ndarray) -> None:
         """The step's flags from the contact sensors recorded after every substep (any touch
@@ -613,18 +629,24 @@ class ArmBatch:
         """_flags() of one arm from Python values (see _ik_list): ``rows``, the sensors after
         each substep, ``counters``, all the warning counters now. Returns (self_collision,
         collision_depth, unstable) as Python values; the flags are set as (1,) arrays."""
-        touched = floor = False
-        for row in rows:
-            touched = touched or row[_SELF_FOUND] > 0
-            floor = floor or row[_FLOOR_FOUND] > 0
-        warnings = _unstable_of(counters)
+        found = [x for row in rows for x in row[_SELF_FOUND:_SELF_DIST + 1]]
+        return self._flags_lean(found, [row[_FLOOR_FOUND] for row in rows], counters)
+
+    def _flags_lean(self, found: list[float], floor: list[float],
+                    counters: list[int] | None = None) -> tuple[bool, float, bool]:
+        """_flags_one() from the self-contact sensor's (found, distance) pairs of every
+        substep, flat, and the floor sensor's found values; ``counters`` default to the
+        warning counters now."""
+        touched = any(map(_POSITIVE, found[0::2]))  # (any found > 0, as _flags())
+        floor = any(map(_POSITIVE, floor))
+        warnings = _unstable_of(self._warning_number.tolist() if counters is None else counters)
         unstable = (warnings != self._warnings
                     or not all(map(math.isfinite, self._qpos_row.tolist())))
         self._warnings = warnings
         if touched:  # _flags()'s own calls (numpy's maximum keeps a NaN; max() may not)
-            sensors = np.array([rows])
+            pairs = np.array([found]).reshape(1, -1, 2)
             self.collision_depth = np.maximum.reduce(
-                np.where(sensors[:, :, _SELF_FOUND] > 0, -sensors[:, :, _SELF_DIST], 0.0), axis=1)
+                np.where(pairs[:, :, 0] > 0, -pairs[:, :, 1], 0.0), axis=1)
             depth = float(self.collision_depth[0])
         else:  # without a touch every substep's depth is 0.0, and so is the maximum
             self.collision_depth, depth = np.zeros(1), 0.0
@@ -642,6 +664,40 @@ class ArmBatch:
                                       out={"sensordata": out})["sensordata"]
         out[0] = self._physics_rows(out.shape[1])[0]
         return out
+
+    def _substeps_one(self) -> tuple[list[float], list[float]]:
+        """step_one's substeps and end-of-step kinematics: ``_physics_rows(substeps)`` then
+        ``_end_of_step_kinematics()``, the same numbers in fewer Python calls. Returns the
+        self-contact sensor's (found, distance) after each substep, flat, and the floor
+        sensor's found after each (in the same order, not necessarily the substeps').
+
+        The substeps run in one ``mj_step(m, d, n)``, and each substep's contact sensors come
+        from MuJoCo's sensor history (the last n readings: assets/scene.xml), not from a read
+        and a check of the warning counters after every substep. But ``Batch.rollout`` stops an
+        arm at the substep its warning counters rise (MuJoCo resets a simulation that goes bad
+        and steps on), which one call cannot do: when the counters moved, the state saved
+        before the call and the counters are restored and the substeps replayed one by one, as
+        ``_physics_rows`` does (MuJoCo then prints the warning's first-time message twice).
+        """
+        m, d, raw, n = self.model, self._data, self._warning_raw, self.substeps
+        start = raw.tobytes()
+        if self._history_rows:
+            mujoco.mj_getState(m, d, self._saved, _SAVED_STATE)
+            mujoco.mj_step(m, d, n)
+            if raw.tobytes() == start:
+                history = self._history.tolist()
+                self._end_of_step_kinematics()
+                # Each sensor's ring buffer is [user, cursor, n times, n values]: after n
+                # insertions its n values are this call's, in an order set by the cursor, which
+                # the flags (any touch, deepest touch) do not depend on.
+                (v0, v1) = self._history_at
+                return history[v0:v0 + 2 * n], history[v1:v1 + n]
+            mujoco.mj_setState(m, d, self._saved, _SAVED_STATE)
+            raw[:] = np.frombuffer(start, raw.dtype)
+        rows, _ = self._physics_rows(n)
+        self._end_of_step_kinematics()
+        return ([x for row in rows for x in row[_SELF_FOUND:_SELF_DIST + 1]],
+                [row[_FLOOR_FOUND] for row in rows])
 
     def _physics_rows(self, nstep: int) -> tuple[list[list[float]], list[int]]:
         """One arm's substeps on its MjData: the sensors after each (nstep rows) and all the

@@ -232,3 +232,44 @@ def test_one_arm_core_is_a_row_of_a_batch_bit_for_bit(ik):
                           many.ik(target, q0=q0, iters=20)[1])
     data = one.get_data(0)
     assert np.array_equal(data.qpos[:N_JOINTS], one.qpos[0]) and data is not one._data
+
+
+def test_one_arm_contacts_come_from_the_sensor_history_as_from_a_read_after_each_substep():
+    """The single env's step runs its substeps in one mj_step call and reads each substep's
+    contact sensors from MuJoCo's sensor history (core._substeps_one): its flags are those of
+    a loop of mj_step reading the sensors after every substep, also after an arm MuJoCo
+    reset mid-step (the history's ring then starts elsewhere) and while it touches itself
+    and the floor."""
+    m = load_model()
+    rng = np.random.default_rng(3)
+    start = np.clip(HOME_QPOS + rng.uniform(-1.5, 1.5, N_JOINTS), m.jnt_range[:N_JOINTS, 0],
+                    m.jnt_range[:N_JOINTS, 1])
+    target = StaticTarget(rng.uniform([-0.3, -0.6, -0.1], [0.9, 0.6, 0.9]))
+    one = ArmBatch(1, nthread=1)
+    assert one.lean and one._history_rows
+    one.reset(trajs=[target], n_steps=80, qpos=start[None])
+    d = one.get_data(0)
+    seen = {"self": 0, "floor": 0}
+    for t in range(80):
+        if t == 12:  # a blow-up: MuJoCo resets the arm in the first substep
+            one.qvel[0, 1] = d.qvel[1] = 1e12
+        one.step()
+        d.ctrl[:N_JOINTS] = one.q_goal[0]
+        start_warnings = d.warning.number.copy()
+        rows = []
+        for _ in range(one.substeps):
+            mujoco.mj_step(m, d)
+            rows.append(d.sensordata.copy())
+            if not np.array_equal(d.warning.number, start_warnings):
+                break
+        rows = np.array(rows)
+        np.testing.assert_array_equal(d.qpos[:N_JOINTS], one.qpos[0])
+        found = rows[:, 0] > 0
+        assert one.self_collision[0] == found.any()
+        assert one.floor_contact[0] == (rows[:, 2] > 0).any()
+        assert one.collision_depth[0] == np.where(found, -rows[:, 1], 0.0).max()
+        assert one.unstable[0] == (t == 12)
+        shifted = int(d.history[m.sensor_historyadr[0] + 1]) != 4
+        seen["self"] += shifted and found.any()
+        seen["floor"] += shifted and (rows[:, 2] > 0).any()
+    assert seen["self"] and seen["floor"]
