@@ -12,7 +12,7 @@ if [ "${1:-all}" = all ]; then
   # 1. One committed summary per training run (config, curve, best model's hash, its metrics
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
-      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_50m; do
+      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -f results/runs/baselines.json ] || runs baselines
@@ -23,20 +23,20 @@ if [ "${1:-all}" = all ]; then
   [ -f "archive/$H.zip" ] || runs choose --study "$H" --archive-as "$H" --runs "sweeps/$H/runs"
   S=v5_err_decay_smooth  # the smooth alternative (docs/questions.md 6, the jerk)
   [ -f "archive/$S.zip" ] || runs choose --study "$S" --archive-as "$S" --runs "sweeps/$S/runs"
-  [ -f archive/ikfree_50m.zip ] || runs choose --study ikfree_50m --archive-as ikfree_50m \
-    --runs sweeps/ikfree_50m/runs  # no IK, 50M steps (docs/questions.md 7)
+  [ -f archive/ikfree_long.zip ] || runs choose --study ikfree_long --archive-as ikfree_long \
+    --runs sweeps/ikfree_long/runs  # no IK, 30M steps (docs/questions.md 7)
   # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory, started from the
   #    headline's lead) on the first 200.
   [ -d rollouts/classical ] || uv run ikpd.py --seeds 0-999 --prefix classical
   [ -d rollouts/analytic ] || uv run ikpd.py --seeds 0-999 --prefix analytic --controller analytic
-  for m in "$H" v5_5m indep_v5 ikfree_50m; do
+  for m in "$H" v5_5m indep_v5 ikfree_long; do
     [ -d "rollouts/$m" ] || uv run eval.py --seeds 0-999 --prefix "$m" --model "archive/$m.zip"
   done
   [ -d rollouts/ilc ] || uv run ikpd.py --controller ilc --seeds 0-199 --prefix ilc \
     --model "archive/$H.zip"
   # 4. The paired tables and the headline figure.
   for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 $H" \
-      "indep_v5 v5_5m" "$H ikfree_50m" "classical ikfree_50m"; do
+      "indep_v5 v5_5m" "$H ikfree_long" "classical ikfree_long"; do
     set -- $pair
     uv run metrics.py --prefix-a "$1" --prefix-b "$2" --breakdown --markdown \
       | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
@@ -68,10 +68,10 @@ for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v
   runs report --study "$study" > "results/spread_$study.md"
   runs compare --study "$study" --against-study v5 > "results/${study}_vs_v5.md"
 done
-# the IK-free policy: 50M steps against 5M, and its curve beside the lead's (docs/questions.md 7)
-if [ -d results/runs/ikfree_50m ]; then
-  runs compare --study ikfree_50m --against-study ikfree > results/ikfree_50m_vs_ikfree.md
-  runs curve --studies ikfree_50m ikfree "$H" --plot results/ikfree_curve.png
+# the IK-free policy: the long run against ikfree's 5M, and its curve beside the lead's (docs/questions.md 7)
+if [ -d results/runs/ikfree_long ]; then
+  runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
+  runs curve --studies ikfree_long ikfree "$H" --plot results/ikfree_curve.png
 fi
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
