@@ -563,6 +563,16 @@ def test_sets_that_would_share_a_name_are_named_by_their_prefixes():
     assert metrics.set_labels([one("test"), one("test")], ["analytic", "mine"]) == ["Analytic", "mine"]
 
 
+def test_a_policy_that_outputs_no_lead_is_not_called_a_lead():
+    def policy(action):
+        r = offset_rollout(0.01, seed=0, shape="circle", controller="policy")
+        r.meta["env"] = {"action": action}
+        return {0: r}
+
+    labels = metrics.set_labels([policy("joint_target"), policy("lead")], ["ikfree", "v5"])
+    assert labels == ["RL joint goals (no IK)", "RL+Lead"]
+
+
 def test_holm_adjusts_a_family_of_p_values():
     from panda_lead.metrics.stats import holm
 

@@ -24,11 +24,19 @@ CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy":
 DEFAULT_LABELS = {"ikpd": "Classical", "analytic": "Analytic", "eval": "RL+Lead"}
 
 
+# A policy whose action is not a lead is not called one (its rollouts record the env).
+POLICY_ACTION_LABELS = {"joint": "RL+Joint residual", "joint_target": "RL joint goals (no IK)"}
+
+
 def controller_label(rollouts: dict, prefix: str) -> str:
-    """A set's display name: from the controller its rollouts record, else from its usual
-    prefix (ikpd, analytic, eval), else the prefix itself."""
+    """A set's display name: from the controller its rollouts record (a policy by its action),
+    else from its usual prefix (ikpd, analytic, eval), else the prefix itself."""
     kinds = {r.meta.get("controller") for r in rollouts.values()}
     known = CONTROLLER_LABELS.get(kinds.pop()) if len(kinds) == 1 else None
+    if known == "RL+Lead":
+        actions = {(r.meta.get("env") or {}).get("action", "lead") for r in rollouts.values()
+                   if isinstance(r.meta.get("env") or {}, dict)}
+        known = POLICY_ACTION_LABELS.get(actions.pop(), known) if len(actions) == 1 else known
     return known or DEFAULT_LABELS.get(prefix, prefix)
 
 
