@@ -36,7 +36,8 @@ if [ "${1:-all}" = all ]; then
     --model "archive/$H.zip"
   # 4. The paired tables and the headline figure.
   for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 $H" \
-      "indep_v5 v5_5m" "$H ikfree_long" "classical ikfree_long"; do
+      "indep_v5 v5_5m" "$H ikfree_long" "v5_5m ikfree_long" "analytic ikfree_long" \
+      "classical ikfree_long"; do
     set -- $pair
     uv run metrics.py --prefix-a "$1" --prefix-b "$2" --breakdown --markdown \
       | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
