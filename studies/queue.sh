@@ -38,6 +38,7 @@ if [ "${1:-main}" = main ]; then
   # 30M steps: what one session's time allowed, not the 50M the reference work estimated.
   sweep --name ikfree_long --presets ikfree_err_decay --seeds 1 --timesteps 30000000 \
     --eval-freq 250000
+  sweep --name ikfree_5m --presets ikfree_err_decay --seeds 1 2 3  # its spread at the presets' budget
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
   sweep --name noisy --presets noisy --seeds 1 2 3

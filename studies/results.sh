@@ -12,7 +12,7 @@ if [ "${1:-all}" = all ]; then
   # 1. One committed summary per training run (config, curve, best model's hash, its metrics
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
-      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long; do
+      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -f results/runs/baselines.json ] || runs baselines
@@ -72,6 +72,8 @@ done
 # the IK-free policy: the long run against ikfree's 5M, and its curve beside the lead's (docs/questions.md 7)
 if [ -d results/runs/ikfree_long ]; then
   runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
+  [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md \
+    && runs compare --study ikfree_5m --against-study "$H" > "results/ikfree_5m_vs_$H.md"
   runs curve --studies ikfree_long ikfree "$H" --plot results/ikfree_curve.png
 fi
 # the climb's steps against the step before them (each changes one thing)
