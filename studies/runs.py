@@ -8,7 +8,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
-    uv run studies/runs.py curve --studies ikfree_50m v5_err_decay --plot results/ikfree_curve.png
+    uv run studies/runs.py curve --studies ikfree_long ikfree v5_err_decay --plot results/ikfree_curve.png
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every

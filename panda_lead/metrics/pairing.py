@@ -34,8 +34,8 @@ def controller_label(rollouts: dict, prefix: str) -> str:
     kinds = {r.meta.get("controller") for r in rollouts.values()}
     known = CONTROLLER_LABELS.get(kinds.pop()) if len(kinds) == 1 else None
     if known == "RL+Lead":
-        actions = {(r.meta.get("env") or {}).get("action", "lead") for r in rollouts.values()
-                   if isinstance(r.meta.get("env") or {}, dict)}
+        envs = [r.meta.get("env") for r in rollouts.values()]
+        actions = {e.get("action", "lead") if isinstance(e, dict) else "lead" for e in envs}
         known = POLICY_ACTION_LABELS.get(actions.pop(), known) if len(actions) == 1 else known
     return known or DEFAULT_LABELS.get(prefix, prefix)
 
