@@ -59,3 +59,18 @@ def test_a_card_promises_the_snippets_number_not_its_sidecars(tmp_path):
     # The zip and its JSON are untouched by writing a card.
     assert json.loads((tmp_path / "ikfree.json").read_text()) == side
     verify(zip_path)
+
+
+def test_a_card_says_when_its_model_was_selected_and_what_it_outputs(tmp_path):
+    # ikfree_long's best evaluation came at 5.0M steps of a 30M-step run, and it has no IK.
+    for suffix in (".zip", ".json"):
+        shutil.copy2(ROOT / "archive" / f"ikfree_long{suffix}", tmp_path / f"ikfree_long{suffix}")
+    side = verify(tmp_path / "ikfree_long.zip")
+    card = write_card(tmp_path / "ikfree_long.zip", side, seed0=1.0).read_text()
+    assert f"Selected at step {side['timesteps']:,} of a 30,000,000-step run" in card
+    assert "no IK in the loop" in card and "IK+PD" not in card
+    # A run whose model is its last evaluation says it was trained that long.
+    last = {**side, "train_config": {**side["train_config"], "timesteps": side["timesteps"]}}
+    card = write_card(tmp_path / "ikfree_long.zip", last, seed0=1.0).read_text()
+    assert f"Trained {side['timesteps']:,} steps from preset `ikfree_err_decay`" in card
+    assert "Selected at" not in card

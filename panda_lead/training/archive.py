@@ -137,21 +137,28 @@ def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
         for s in SHAPES if f"{s}/mean_error_cm" in test)
     preset = train.get("preset")
     from_preset = f" from preset `{preset}`" if preset else ""
-    origin = (f"Trained {side.get('timesteps', 0):,} steps{from_preset}, seed "
-              f"{train.get('seed', '?')}, {side.get('wall_time_s', '?')} s, code commit "
-              f"`{side.get('commit', '?')}`." if train else
+    steps, budget = side.get("timesteps", 0), train.get("timesteps")
+    # A run's best model can come from any evaluation of it: its own step count is not the
+    # run's budget (ikfree_long's best came at 5.0M of 30M steps).
+    when = (f"Selected at step {steps:,} of a {budget:,}-step run (its lowest evaluation-set "
+            f"error){from_preset}, seed {train.get('seed', '?')}, after {side.get('wall_time_s', '?')} s"
+            if budget and steps and budget - steps > train.get("eval_freq", 0) else
+            f"Trained {steps:,} steps{from_preset}, seed {train.get('seed', '?')}, "
+            f"{side.get('wall_time_s', '?')} s")
+    origin = (f"{when}, code commit `{side.get('commit', '?')}`." if train else
               f"Adopted from `{side.get('source', '?')}` (trained outside this repo's train.py).")
     caveats = "".join(f"\n**Caveat.** {c}\n" for c in side.get("caveats", []))
     action = side["env_config"].get("action", "lead")
-    what = {"lead": "a Cartesian lead added to the IK target of",
-            "joint": "a joint-goal residual added to the IK's joint goal in",
-            "joint_target": "the joint position targets directly (no IK in the loop) of"}[action]
+    what = {"lead": "a Cartesian lead added to the IK target of a classical IK+PD",
+            "joint": "a joint-goal residual added to the IK's joint goal in a classical IK+PD",
+            "joint_target": "the joint position goals directly (no IK in the loop) to the joint "
+                            "PD of a"}[action]
     seeds = f"{QUICK_TEST_SEEDS[0]}-{QUICK_TEST_SEEDS[-1]}"
     policy = side.get("policy", {})
     text = f"""# Model card: {name}
 
 A PPO policy (stable-baselines3, MLP {policy.get('net_arch', '?')}, {policy.get('activation_fn', '?')})
-that outputs {what} a classical IK+PD Franka Panda controller (`PandaLead-v0`).
+that outputs {what} Franka Panda controller (`PandaLead-v0`).
 {origin}
 Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same sidecar and
 `model_sha256`, the zip's SHA-256), this card.
@@ -164,7 +171,8 @@ Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same 
 {shape_rows}
 
 Test seed 0 alone: {seed0:.6f} cm (the snippet below reproduces it).{older}
-The full results (1,000 test seeds, paired with the baselines): README and docs/results.md.
+Where this model has full results (1,000 test seeds, paired with the baselines): README,
+docs/results.md or docs/questions.md.
 
 ## Load it
 
