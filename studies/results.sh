@@ -23,6 +23,8 @@ if [ "${1:-all}" = all ]; then
   [ -f "archive/$H.zip" ] || runs choose --study "$H" --archive-as "$H" --runs "sweeps/$H/runs"
   S=v5_err_decay_smooth  # the smooth alternative (docs/questions.md 6, the jerk)
   [ -f "archive/$S.zip" ] || runs choose --study "$S" --archive-as "$S" --runs "sweeps/$S/runs"
+  [ -f results/ikfree_long_diagnostics.csv ] || runs diagnostics --runs sweeps/ikfree_long/runs/*/ \
+    --csv results/ikfree_long_diagnostics.csv  # PPO's health per window (docs/questions.md 7)
   [ -f archive/ikfree_long.zip ] || runs choose --study ikfree_long --archive-as ikfree_long \
     --runs sweeps/ikfree_long/runs  # no IK, 30M steps (docs/questions.md 7)
   # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory, started from the

@@ -9,6 +9,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
     uv run studies/runs.py curve --studies ikfree_long ikfree v5_err_decay --plot results/ikfree_curve.png
+    uv run studies/runs.py diagnostics --csv results/ikfree_const_lr_diagnostics.csv  # PPO's health per window
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
@@ -46,7 +47,8 @@ KEYS = ("mean_err", "settled_err", "jerk_rms")
 @dataclass
 class Args:
     command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose",
-                                          "compare", "rates", "rank", "curve"]]
+                                          "compare", "rates", "rank", "curve",
+                                          "diagnostics"]]
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
@@ -68,6 +70,10 @@ class Args:
     """curve: the studies whose evaluation curves are drawn (every seed of each)."""
     plot: Path | None = None
     """curve: the figure's path (PNG)."""
+    csv: Path | None = None
+    """diagnostics: the run's diagnostics file (written from --runs RUN when given, else read)."""
+    window: int = 2_000_000
+    """diagnostics: training steps per row of the table."""
 
 
 def _metrics_on_test(ctrl) -> dict[str, list[float]]:
@@ -365,10 +371,68 @@ def curve(args: Args) -> None:
         print(f"{name}: {cm:.2f} cm on the evaluation set")
 
 
+DIAGNOSTICS = {"total_timesteps": "time/total_timesteps", "eval_timesteps": "eval/timesteps",
+               "mean_error_cm": "eval/mean_error_cm", "std": "train/std",
+               "approx_kl": "train/approx_kl", "clip_fraction": "train/clip_fraction",
+               "ep_rew_mean": "rollout/ep_rew_mean"}
+
+
+def diagnostics(args: Args) -> None:
+    """PPO's health over a run, small enough to commit: from a run's SB3 log (tb/progress.csv)
+    every evaluation row and every 8th update's policy std, KL per update and clip fraction,
+    then (from that file alone) their means per window of training steps. A run that came
+    apart is stopped and never summarized; this file is what remains of it in git."""
+    from panda_lead.atomicio import atomic_write
+
+    if args.csv is None or len(args.runs) > 1:
+        raise UserError("diagnostics needs --csv FILE (and --runs RUN, one run folder, to write it)")
+    if args.runs:
+        log = args.runs[0] / "tb" / "progress.csv"
+        if not log.is_file():
+            raise UserError(f"{log}: no such file (is {args.runs[0]} a run folder?)")
+        if args.csv.exists() and not args.force:
+            raise UserError(f"{args.csv} exists (add --force to replace it)")
+        with open(log) as f:
+            rows = list(csv.DictReader(f))
+        updates = [r for r in rows if r.get("train/std") and not r.get("eval/mean_error_cm")]
+        kept = {id(r) for r in updates[::8]}
+        with atomic_write(args.csv, ".tmp.csv") as tmp, open(tmp, "w", newline="") as f:
+            out = csv.writer(f, lineterminator="\n")
+            out.writerow(DIAGNOSTICS)
+            out.writerows([r.get(c, "") for c in DIAGNOSTICS.values()] for r in rows
+                          if r.get("eval/mean_error_cm") or id(r) in kept)
+        print(f"wrote {args.csv}")
+    if not args.csv.is_file():
+        raise UserError(f"{args.csv}: no such file")
+    with open(args.csv) as f:
+        rows = list(csv.DictReader(f))
+    if not rows or set(DIAGNOSTICS) - set(rows[0]):
+        raise UserError(f"{args.csv}: not a diagnostics file (columns {', '.join(DIAGNOSTICS)})")
+
+    def windowed(step_key: str, key: str) -> dict[int, float]:
+        by: dict[int, list[float]] = {}
+        for r in rows:
+            if r[step_key] and r[key]:
+                by.setdefault(int(float(r[step_key]) - 1) // args.window, []).append(float(r[key]))
+        return {w: float(np.mean(v)) for w, v in by.items()}
+
+    cols = {"evaluation error (cm)": windowed("eval_timesteps", "mean_error_cm"),
+            "policy std": windowed("total_timesteps", "std"),
+            "KL per update": windowed("total_timesteps", "approx_kl"),
+            "clip fraction": windowed("total_timesteps", "clip_fraction")}
+    print(f"{args.csv}: means per {args.window:,} training steps\n")
+    print("| steps (M) | " + " | ".join(cols) + " |")
+    print("|---|" + "---|" * len(cols))
+    for w in sorted(set().union(*cols.values())):
+        cells = [f"{c[w]:.3g}" if w in c else "" for c in cols.values()]
+        print(f"| {w * args.window / 1e6:g}-{(w + 1) * args.window / 1e6:g} | " + " | ".join(cells) + " |")
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     {"summarize": summarize, "baselines": baselines, "report": report, "choose": choose,
-     "compare": compare_studies, "rates": rates, "rank": rank, "curve": curve}[args.command](args)
+     "compare": compare_studies, "rates": rates, "rank": rank, "curve": curve,
+     "diagnostics": diagnostics}[args.command](args)
 
 
 if __name__ == "__main__":

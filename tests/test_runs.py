@@ -88,3 +88,34 @@ def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes
     assert analytic < classical  # the analytic lead leads the target: it tracks better
     with pytest.raises(runs.UserError, match="different lengths"):  # not one evaluation set
         runs.curve(runs.Args(command="curve", studies=["a", "other"], plot=plot))
+
+
+def test_diagnostics_keep_every_evaluation_and_every_8th_update_and_average_per_window(
+        runs, tmp_path, capsys):
+    import csv
+
+    run = tmp_path / "run"
+    (run / "tb").mkdir(parents=True)
+    head = ["time/total_timesteps", "train/std", "train/approx_kl", "train/clip_fraction",
+            "rollout/ep_rew_mean", "eval/timesteps", "eval/mean_error_cm", "train/loss"]
+    rows = []
+    for i in range(1, 21):  # updates at 100k, 200k, ... 2M steps; the std halves at 1M
+        rows.append([i * 100_000, 0.4 if i <= 10 else 0.2, 0.01 * i, 0.1, -5, "", "", 1])
+        if i % 5 == 0:  # an evaluation every 500k: 8 cm before 1M, 4 cm after
+            rows.append(["", 0.3, 0.5, 0.5, "", i * 100_000, 8.0 if i <= 10 else 4.0, ""])
+    with open(run / "tb" / "progress.csv", "w", newline="") as f:
+        csv.writer(f).writerows([head, *rows])
+    out = tmp_path / "diag.csv"
+    runs.diagnostics(runs.Args("diagnostics", runs=[run], csv=out, window=1_000_000))
+    kept = list(csv.DictReader(open(out)))
+    assert [r["total_timesteps"] for r in kept if r["total_timesteps"]] == ["100000", "900000",
+                                                                             "1700000"]
+    assert [r["mean_error_cm"] for r in kept if r["eval_timesteps"]] == ["8.0"] * 2 + ["4.0"] * 2
+    table = capsys.readouterr().out
+    assert "| 0-1 | 8 | 0.4 | 0.05 | 0.1 |" in table  # updates at 100k and 900k: KL 0.01, 0.09
+    assert "| 1-2 | 4 | 0.2 | 0.17 | 0.1 |" in table  # 1.7M alone
+    with pytest.raises(runs.UserError, match="exists"):  # never overwritten unasked
+        runs.diagnostics(runs.Args("diagnostics", runs=[run], csv=out))
+    out.write_text("a,b\n1,2\n")
+    with pytest.raises(runs.UserError, match="not a diagnostics file"):
+        runs.diagnostics(runs.Args("diagnostics", csv=out))
