@@ -13,6 +13,7 @@
 #             and ikfree_long (ikfree_err_decay: + the tip error, 3e-4 decayed) to 30M steps
 # The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
 # curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side.
+# What is queued but not yet run: bash studies/queue.sh next.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl}
@@ -39,6 +40,11 @@ if [ "${1:-main}" = main ]; then
   sweep --name ikfree_long --presets ikfree_err_decay --seeds 1 --timesteps 30000000 \
     --eval-freq 250000
   sweep --name ikfree_5m --presets ikfree_err_decay --seeds 1 2 3  # its spread at the presets' budget
+elif [ "$1" = next ]; then
+  # Not yet run (2026-11-24): the noise study's policy at the presets' budget, and the IK-free
+  # policy at 1e-3 held together by SB3's KL guard instead of a smaller rate.
+  sweep --name noisy_5m --presets noisy --seeds 1 2 3 4 5
+  sweep --name ikfree_kl --presets ikfree_err_kl --seeds 1 2 3
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
   sweep --name noisy --presets noisy --seeds 1 2 3

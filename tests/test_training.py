@@ -372,3 +372,27 @@ def test_the_loop_raises_training_interrupted_after_saving(tmp_path):
         train(args, on_eval=ctrl_c)
     assert info.value.signum == signal.SIGINT
     assert (info.value.run_dir / "interrupted_model.zip").is_file()
+
+
+def test_target_kl_stops_an_updates_epochs_early(tmp_path):
+    """--target-kl reaches SB3's PPO: with a bound no update can stay under, each update stops
+    in its first epoch; without one all 4 epochs run."""
+    import csv
+
+    from panda_lead.training import train
+
+    def updates(*flags):
+        args = parse_args(["--timesteps", "512", "--eval-freq", "0", "--runs-dir",
+                           str(tmp_path / f"runs{len(flags)}"), *TINY, "--n-epochs", "4",
+                           "--learning-rate", "0.01", *flags])
+        run_dir = train(args)
+        rows = list(csv.DictReader(open(run_dir / "tb" / "progress.csv")))
+        return [int(float(r["train/n_updates"])) for r in rows if r.get("train/n_updates")]
+
+    # 4 rollouts of 128 steps; SB3 writes an update's counters with the next rollout's line,
+    # so the log holds the first 3 updates. n_updates counts epochs begun.
+    assert updates() == [4, 8, 12]
+    assert updates("--target-kl", "1e-12") == [1, 2, 3]
+    assert parse_args(["--preset", "ikfree_err_kl"]).target_kl == 0.02
+    with pytest.raises(UserError, match="--target-kl"):
+        TrainConfig(target_kl=0.0)

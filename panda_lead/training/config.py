@@ -48,6 +48,10 @@ class TrainConfig:
     """PPO clipping parameter."""
     ent_coef: float = 0.0
     """Entropy bonus coefficient."""
+    target_kl: float | None = None
+    """Stop an update's epochs early once the approximate KL divergence from the rollout's
+    policy passes 1.5x this (SB3's guard; None: never). The IK-free policy at 1e-3 came apart
+    with its KL per update rising to 0.2-0.3 (docs/questions.md 7)."""
     net_arch: tuple[int, ...] = (64, 64)
     """Hidden layer sizes of the policy and value MLPs (tanh)."""
     log_std_init: float = -1.0
@@ -120,6 +124,10 @@ class TrainConfig:
         if self.stop_below_cm is not None and not (math.isfinite(self.stop_below_cm)
                                                    and self.stop_below_cm > 0):
             raise UserError(f"--stop-below-cm must be > 0, got {self.stop_below_cm!r}")
+        if self.target_kl is not None and not (isinstance(self.target_kl, int | float)
+                                               and math.isfinite(self.target_kl)
+                                               and self.target_kl > 0):
+            raise UserError(f"--target-kl must be a finite number > 0, got {self.target_kl!r}")
         if isinstance(self.curriculum_steps, bool) or not isinstance(self.curriculum_steps, int) \
                 or self.curriculum_steps < 0:
             raise UserError(f"--curriculum-steps must be an integer >= 0, got {self.curriculum_steps!r}")

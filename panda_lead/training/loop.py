@@ -181,7 +181,8 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     vec = make_vec_env(config.env, config.n_envs, config.seed, config.vec_env, config.n_workers)
     logger = make_logger(run_dir / "tb")
     ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",
-                                           "gae_lambda", "learning_rate", "clip_range", "ent_coef")}
+                                           "gae_lambda", "learning_rate", "clip_range", "ent_coef",
+                                           "target_kl")}
     if config.lr_schedule == "linear":
         ppo["learning_rate"] = linear_schedule(config.learning_rate)
     model = PPO("MlpPolicy", vec, seed=config.seed, device=config.device, verbose=0,

@@ -113,6 +113,13 @@ PRESETS.update([
             "decayed linearly to 0: the long run's configuration",
             env=dict(obs_features=OBS_29 + ("tip_error",), action="joint_target"),
             learning_rate=3e-4, lr_schedule="linear"),
+    # The usual guard instead of a smaller rate: ikfree + the tip error at 1e-3, decayed, each
+    # update's epochs stopped once its KL passes 0.03 (the lead policies' KL at 1e-3 is
+    # 0.01-0.02; the run that came apart reached 0.2-0.3).
+    _preset("ikfree_err_kl", "ikfree + the tip error (32-D) at 1e-3 decayed linearly, each "
+            "update stopped early once its KL passes 1.5 x 0.02 (SB3's target_kl)",
+            env=dict(obs_features=OBS_29 + ("tip_error",), action="joint_target"),
+            learning_rate=1e-3, lr_schedule="linear", target_kl=0.02),
 ])
 
 
