@@ -33,7 +33,7 @@ import importlib.util
 import math
 from dataclasses import dataclass, field
 from functools import cache
-from operator import add, itemgetter, sub
+from operator import itemgetter, sub
 from pathlib import Path
 
 import mujoco  # (panda_lead/__init__.py chose the GL backend before this first import)
@@ -158,11 +158,13 @@ except ImportError:  # (a private name: should numpy move it, the public functio
     _solve_gufunc = None
 
 
-def _solve_unchecked(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """_solve without the check for a singular or non-finite system (see _ik_list)."""
+def _solve_unchecked(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """_solve without the check for a singular or non-finite system (see _ik_list), into
+    ``out``."""
     if _solve_gufunc is None:
-        return np.linalg.solve(a, b)
-    return _solve_gufunc(a, b)  # (float64 operands: its float64 loop, as solve's signature)
+        out[...] = np.linalg.solve(a, b)
+        return out
+    return _solve_gufunc(a, b, out=out)  # (float64 operands: its float64 loop, as solve's)
 
 
 def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -178,6 +180,32 @@ def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
+class _Deferred:
+    """An attribute (an array) that a single env's step leaves to be made when first read:
+    stored in ``_<name>``, made by the method ``make`` while the attribute ``pending`` is not
+    None (a set makes it first too, so that nothing pending is lost). ArmBatch's flags and
+    q_goal (made from what step_one leaves), LeadTask's prev_action, lead and ee_vel (from
+    what its step_one leaves): a single env reads the Python values these steps return."""
+
+    def __init__(self, pending: str, make: str):
+        self._pending, self._make = pending, make
+
+    def __set_name__(self, owner, name: str) -> None:
+        self._attr = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        if getattr(obj, self._pending) is not None:
+            getattr(obj, self._make)()
+        return obj.__dict__[self._attr]
+
+    def __set__(self, obj, value) -> None:
+        if getattr(obj, self._pending) is not None:
+            getattr(obj, self._make)()
+        obj.__dict__[self._attr] = value
+
+
 class ArmBatch:
     """N Pandas and their controller: ``step(lead)`` is one 100 Hz control step of all of them.
 
@@ -188,12 +216,19 @@ class ArmBatch:
     at every control step), so a step does no trajectory maths.
     """
 
+    self_collision = _Deferred("_pending_flags", "_make_flags")
+    collision_depth = _Deferred("_pending_flags", "_make_flags")
+    floor_contact = _Deferred("_pending_flags", "_make_flags")
+    unstable = _Deferred("_pending_flags", "_make_flags")
+    q_goal = _Deferred("_pending_goal", "_make_goal")
+
     def __init__(self, n: int, ik: IKConfig = IKConfig(), substeps: int = CONTROL_SUBSTEPS,
                  nthread: int = 0):
         if n < 1:
             raise ValueError(f"an ArmBatch needs at least one arm, got n={n}")
         self.model = m = load_model()
         self.n = n
+        self._pending_flags = self._pending_goal = None  # (see _Deferred)
         self.ik_config = ik
         self.substeps = int(substeps)
         self.dt = control_dt(self.substeps)
@@ -210,6 +245,7 @@ class ArmBatch:
         self._home_list = self._home.tolist()
         self._rhs = np.zeros((n, 2, 3, 1))
         self._rhs_err = self._rhs[:, 0, :, 0]
+        self._rhs_err_row = self._rhs_err[0]  # arm 0's, for _ik_list
         self._rhs_pull = self._rhs[0, 1:2]  # (1, 3, 1): J times the pull, for _ik_list
         mocap = m.body("target").mocapid[0]
         # One arm (the single env) runs on a plain MjData stepped by mj_step: Batch documents
@@ -243,6 +279,9 @@ class ArmBatch:
             self._pull_col = np.zeros((1, N_JOINTS, 1))
             self._pull_flat = self._pull_col.reshape(-1)
             self._steps = np.zeros((2, N_JOINTS, 1))
+            self._jjt2, self._systems = np.zeros((2, 3, 3)), np.zeros((2, 3, 3))
+            self._solutions = np.zeros((2, 3, 1))
+            self._moved = np.zeros((1, 3, m.nv))  # [b - a]x J_r (_end_of_step_kinematics)
             self._steps_flat = self._steps.reshape(-1)
             # For _substeps_one: the state saved before each control step; the warning
             # counters with their last-info words, as one int32 view of MuJoCo's
@@ -323,6 +362,7 @@ class ArmBatch:
         else:
             self.batch.forward(ids)
         self._warnings = self._unstable_warnings()
+        self._flags_raw = None  # (_flags_lean's record of the counters, as bytes)
         self._tip_jac(ids)
 
     def _set_paths(self, ids: np.ndarray, trajs, n_steps: int) -> None:
@@ -453,38 +493,58 @@ class ArmBatch:
                 tip = tip_pos[0].tolist()
                 jac2 = np.broadcast_to(jac, (2, 3, N_JOINTS))
                 jac2_t = jac2.transpose(0, 2, 1)
-            # (map() over operator functions runs without a Python frame per element, where
-            # Python 3.11 builds and calls one for every comprehension: a few of these add up.)
-            self._rhs_err[0] = list(map(sub, target, tip))
+            # The 7-vectors' arithmetic is written out joint by joint: Python 3.11 builds and
+            # calls a function for every comprehension, and a zip or map of a few 7-vectors
+            # costs more than the arithmetic in it (this tail took 2.7 us as comprehensions
+            # and maps, 0.8 us written out; the operations and their order are ik()'s).
+            j0, j1, j2, j3, j4, j5, j6 = q  # (q0 is the argument)
+            (a0, a1, a2), (b0, b1, b2) = target, tip
+            self._rhs_err_row[:] = (a0 - b0, a1 - b1, a2 - b2)
             if gain:
-                pull = [gain * x for x in map(sub, self._home_list, q)]  # gain * (home - q)
+                h0, h1, h2, h3, h4, h5, h6 = self._home_list
+                pull = [gain * (h0 - j0), gain * (h1 - j1), gain * (h2 - j2), gain * (h3 - j3),
+                        gain * (h4 - j4), gain * (h5 - j5), gain * (h6 - j6)]  # gain * (home - q)
                 self._pull_flat[:] = pull
+                p0, p1, p2, p3, p4, p5, p6 = pull
                 np.matmul(jac, self._pull_col, out=self._rhs_pull)
-                systems = jac2 @ jac2_t + self._regularisers  # (2, 3, 3): J J^T + each
+                # (2, 3, 3): J J^T + each, into buffers (a fresh array costs more than the
+                # copy into it: the same numbers)
+                systems = np.add(np.matmul(jac2, jac2_t, out=self._jjt2), self._regularisers,
+                                 out=self._systems)
                 # The solve without _solve's finiteness check (a numpy reduction): a non-finite
                 # solution gives a non-finite product, which the sum of its values shows.
-                np.matmul(jac_t, _solve_unchecked(systems, rhs), out=self._steps)
+                np.matmul(jac_t, _solve_unchecked(systems, rhs, self._solutions), out=self._steps)
                 steps = self._steps_flat.tolist()
                 if not math.isfinite(sum(steps)):  # _solve's fallback (see there)
                     np.matmul(jac_t, np.linalg.solve(systems, rhs), out=self._steps)
                     steps = self._steps_flat.tolist()
                 # dq = step_0 + (pull - step_1)
-                dq = list(map(add, steps[:N_JOINTS], map(sub, pull, steps[N_JOINTS:])))
+                s0, s1, s2, s3, s4, s5, s6, t0, t1, t2, t3, t4, t5, t6 = steps
+                d0, d1, d2, d3 = s0 + (p0 - t0), s1 + (p1 - t1), s2 + (p2 - t2), s3 + (p3 - t3)
+                d4, d5, d6 = s4 + (p4 - t4), s5 + (p5 - t5), s6 + (p6 - t6)
             else:
+                self._rhs_err_row[:] = (a0 - b0, a1 - b1, a2 - b2)
                 a = (jac_t @ _solve(jac @ jac_t + self._damp3, rhs[:1])).tolist()[0]
-                dq = [x for (x,) in a]
-            # Over the cap or NaN: ik()'s own calls. (max() may pass over a NaN, the sum never
-            # does; under the cap every value is finite and so is the sum.)
-            if not (max(map(abs, dq)) <= cap and math.isfinite(sum(dq))):
-                d = np.array([dq])
+                ((d0,), (d1,), (d2,), (d3,), (d4,), (d5,), (d6,)) = a
+            # Over the cap or NaN: ik()'s own calls. (Every |d| <= cap, written as two
+            # comparisons, which a NaN fails: under the cap every value is finite.)
+            m = -cap
+            if not (m <= d0 <= cap and m <= d1 <= cap and m <= d2 <= cap and m <= d3 <= cap
+                    and m <= d4 <= cap and m <= d5 <= cap and m <= d6 <= cap):
+                d = np.array([[d0, d1, d2, d3, d4, d5, d6]])
                 d *= np.minimum(1.0, cap / np.maximum(np.maximum.reduce(np.abs(d), axis=1,
                                                                         keepdims=True), 1e-300))
-                dq = d[0].tolist()
+                d0, d1, d2, d3, d4, d5, d6 = d[0].tolist()
             # np.clip(q + dq, lo, hi) as ik() computes it, np.minimum(np.maximum(.., lo), hi):
             # a NaN fails both comparisons and stays, as numpy's maximum and minimum keep it
-            # (one comprehension: cheaper than a loop of appends; lo < hi, so hi wins over lo).
-            q = [hi if x > hi else lo if x < lo else x
-                 for x, lo, hi in zip(map(add, q, dq), self._lo_list, self._hi_list, strict=True)]
+            # (lo < hi, so hi wins over lo).
+            x0, x1, x2, x3, x4, x5, x6 = j0 + d0, j1 + d1, j2 + d2, j3 + d3, j4 + d4, j5 + d5, j6 + d6
+            l0, l1, l2, l3, l4, l5, l6 = self._lo_list
+            u0, u1, u2, u3, u4, u5, u6 = self._hi_list
+            q = [u0 if x0 > u0 else l0 if x0 < l0 else x0, u1 if x1 > u1 else l1 if x1 < l1 else x1,
+                 u2 if x2 > u2 else l2 if x2 < l2 else x2, u3 if x3 > u3 else l3 if x3 < l3 else x3,
+                 u4 if x4 > u4 else l4 if x4 < l4 else x4, u5 if x5 > u5 else l5 if x5 < l5 else x5,
+                 u6 if x6 > u6 else l6 if x6 < l6 else x6]
         return q
 
     def _kinematics_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -541,7 +601,8 @@ class ArmBatch:
             mujoco.mj_jac(m, d, self._jacp_row, self._jacr_row, old, self._tip_body)
             r0, r1, r2 = map(sub, self._tip_row.tolist(), old.tolist())  # b - a
             self._skew_flat[:] = (0.0, -r2, r1, r2, 0.0, -r0, -r1, r0, 0.0)
-            np.subtract(self._jacp, self._skew @ self._jacr, out=self._jac)
+            np.subtract(self._jacp, np.matmul(self._skew, self._jacr, out=self._moved),
+                        out=self._jac)
             return
         np.copyto(old_tip, self.tip_pos)
         jacp, jacr = self.batch.jac(self._tip_body, old_tip)
@@ -595,11 +656,12 @@ class ArmBatch:
         k, path = self.step_count.item(0), self.path_rows[0]
         last = len(path) - 1
         target = path[min(k, last)]  # _target_pos_now()
-        if lead is not None:
-            target = list(map(add, target, lead))
+        if lead is not None:  # target + lead (written out: cheaper than a map)
+            (t0, t1, t2), (l0, l1, l2) = target, lead
+            target = [t0 + l0, t1 + l1, t2 + l2]
         q = self._ik_list(target, None, self.ik_config.iters)
         self._ctrl_row[:] = q
-        self.q_goal = self._ctrl_goal.copy()  # np.array([q]): the same float64s, cheaper
+        self._pending_goal = q  # q_goal: np.array([q]) when first read (_Deferred)
         found, floor = self._substeps_one()
         self.step_count[0] = k + 1
         self._mocap_row[:] = path[min(k + 1, last)]
@@ -628,7 +690,8 @@ class ArmBatch:
                    ) -> tuple[bool, float, bool]:
         """_flags() of one arm from Python values (see _ik_list): ``rows``, the sensors after
         each substep, ``counters``, all the warning counters now. Returns (self_collision,
-        collision_depth, unstable) as Python values; the flags are set as (1,) arrays."""
+        collision_depth, unstable) as Python values; the flags' (1,) arrays are made when
+        first read (_Deferred)."""
         found = [x for row in rows for x in row[_SELF_FOUND:_SELF_DIST + 1]]
         return self._flags_lean(found, [row[_FLOOR_FOUND] for row in rows], counters)
 
@@ -639,22 +702,44 @@ class ArmBatch:
         warning counters now."""
         touched = any(map(_POSITIVE, found[0::2]))  # (any found > 0, as _flags())
         floor = any(map(_POSITIVE, floor))
-        warnings = _unstable_of(self._warning_number.tolist() if counters is None else counters)
+        if counters is None:  # unchanged counters (as bytes) since the last flags: no rise
+            raw = self._warning_raw.tobytes()
+            if raw == self._flags_raw:
+                warnings = self._warnings
+            else:
+                warnings, self._flags_raw = _unstable_of(self._warning_number.tolist()), raw
+        else:
+            warnings, self._flags_raw = _unstable_of(counters), None
+        # every qpos finite: a finite sum says so; a non-finite one may be an overflow
+        qpos = self._qpos_row.tolist()
         unstable = (warnings != self._warnings
-                    or not all(map(math.isfinite, self._qpos_row.tolist())))
+                    or not (math.isfinite(sum(qpos)) or all(map(math.isfinite, qpos))))
         self._warnings = warnings
         if touched:  # _flags()'s own calls (numpy's maximum keeps a NaN; max() may not)
             pairs = np.array([found]).reshape(1, -1, 2)
-            self.collision_depth = np.maximum.reduce(
-                np.where(pairs[:, :, 0] > 0, -pairs[:, :, 1], 0.0), axis=1)
-            depth = float(self.collision_depth[0])
+            depths = np.maximum.reduce(np.where(pairs[:, :, 0] > 0, -pairs[:, :, 1], 0.0),
+                                       axis=1)
+            depth = float(depths[0])
         else:  # without a touch every substep's depth is 0.0, and so is the maximum
-            self.collision_depth, depth = np.zeros(1), 0.0
-        # Fresh (1,) arrays each step, as _flags() makes (copies: cheaper than np.array).
-        self.self_collision = (_TRUE1 if touched else _FALSE1).copy()
-        self.floor_contact = (_TRUE1 if floor else _FALSE1).copy()
-        self.unstable = (_TRUE1 if unstable else _FALSE1).copy()
+            depths, depth = None, 0.0
+        # The flags' (1,) arrays are made when first read (_Deferred): a single env reads
+        # the Python values returned here.
+        self._pending_flags = (touched, depths, floor, unstable)
         return touched, depth, unstable
+
+    def _make_goal(self) -> None:
+        """q_goal from step_one's joint goals: (1, 7), the float64s it wrote to ctrl."""
+        self._q_goal, self._pending_goal = np.array([self._pending_goal]), None
+
+    def _make_flags(self) -> None:
+        """The flags' fresh (1,) arrays from _flags_lean's values, as _flags() makes them
+        (copies: cheaper than np.array)."""
+        touched, depths, floor, unstable = self._pending_flags
+        self._pending_flags = None
+        self._self_collision = (_TRUE1 if touched else _FALSE1).copy()
+        self._collision_depth = np.zeros(1) if depths is None else depths
+        self._floor_contact = (_TRUE1 if floor else _FALSE1).copy()
+        self._unstable = (_TRUE1 if unstable else _FALSE1).copy()
 
     def _physics(self, out: np.ndarray) -> np.ndarray:
         """Every arm's physics substeps, (N, nstep, nsensordata) ``out`` recording the sensors

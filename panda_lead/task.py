@@ -8,15 +8,20 @@ seeds.
 from __future__ import annotations
 
 import math
-from operator import mul
+from itertools import chain
+from operator import itemgetter, mul
 
 import numpy as np
 
 from . import trajectory
 from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, action_dim, obs_layout
-from .core import ArmBatch
+from .core import ArmBatch, _Deferred
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 from .trajectory import reachable
+
+# step_one's order of the observation features (its tuple of their values)
+_SOURCES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "joint_pos",
+            "joint_vel", "prev_action", "tip_error", "tip_error_avg")
 
 
 class LeadTask:
@@ -25,6 +30,11 @@ class LeadTask:
     ``rngs[i]`` is episode slot i's generator: it draws slot i's training trajectories and its
     observation noise, so a slot's episodes depend on its own stream alone.
     """
+
+    prev_action = _Deferred("_pending_step", "_make_step")
+    lead = _Deferred("_pending_step", "_make_step")
+    ee_vel = _Deferred("_pending_step", "_make_step")
+    _prev_ee = _Deferred("_pending_step", "_make_step")
 
     def __init__(self, config: EnvConfig, n: int, nthread: int = 0):
         self.config = c = config
@@ -41,7 +51,11 @@ class LeadTask:
             self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
         self._noisy = np.flatnonzero(self._noise_std)
         self._inv_scale_list = self._inv_scale.tolist()
-        self._features = [f for f, _, _ in self.layout]  # for step_one
+        self._features = [f for f, _, _ in self.layout]
+        # step_one's: the observed features' positions in its tuple of every feature
+        at = [_SOURCES.index(f) for f in self._features]
+        self._pick = itemgetter(*at) if len(at) > 1 else lambda source: (source[at[0]],)
+        self._base_dim = base
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         self._error_observed = "tip_error" in self._features
         # tip_error_avg: a running average of the clipped tip error (EnvConfig.error_avg_*),
@@ -58,10 +72,14 @@ class LeadTask:
         self._alive = np.full(n, self._w["alive"])
         self.rngs = [np.random.default_rng() for _ in range(n)]
         self.action_dim = action_dim(c.action)
+        self._pending_step = None  # (see _make_step)
         self.prev_action = np.zeros((n, self.action_dim))
         self.lead = np.zeros((n, 3))
         self.ee_vel = np.zeros((n, 3))
         self._prev_ee = np.zeros((n, 3))
+        # step_one's row views of slot 0 (these arrays are only ever written in place)
+        self._ee_vel_row, self._prev_ee_row = self.ee_vel[0], self._prev_ee[0]
+        self._tip_row = self.core.tip_pos[0]
         self.traj_seeds = np.zeros(n, dtype=np.int64)
         self.shapes = [""] * n
         self.trajs: list = [None] * n
@@ -80,8 +98,20 @@ class LeadTask:
         # as Python floats (the lead is the action times max_lead, as _control computes it).
         self._lean_lead = n == 1 and self.core.lean and c.action == "lead" and not self._delayed
         self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
+        self._action_weighed = bool(c.w_action or c.w_action_change)  # step_one's terms
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
+
+    def _make_step(self) -> None:
+        """What step_one's lean route leaves to be made when first read (_Deferred): the last
+        step's prev_action and lead, fresh (1, 3) arrays, as step() makes them, and ee_vel and
+        the last tip position written into their arrays. A single env reads neither (its
+        info's lead is made from its own values): the two arrays and two writes a step cost it
+        1-2 us in place, measured (docs/performance.md, the fourth pass)."""
+        values, lead, ee_vel, ee = self._pending_step
+        self._pending_step = None
+        self._prev_action, self._lead = np.array([values]), np.array([lead])
+        self._ee_vel_row[:], self._prev_ee_row[:] = ee_vel, ee
 
     def set_speed_cap(self, cap: float | None) -> None:
         """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any)."""
@@ -233,29 +263,44 @@ class LeadTask:
         if self.n != 1:
             raise ValueError(f"step_one is for a task of one slot; this one has {self.n}")
         c, core = self.config, self.core
-        # (an array's own ravel: np.ravel's dispatch costs more than the copy out)
-        values = (action.ravel() if type(action) is np.ndarray else np.ravel(action)).tolist()
+        # (an array's own ravel: np.ravel's dispatch costs more than the copy out; a 1-D
+        # array needs none)
+        values = ((action if action.ndim == 1 else action.ravel()) if type(action) is np.ndarray
+                  else np.ravel(action)).tolist()
         if len(values) != self.action_dim:
             raise ValueError(f"action must have {self.action_dim} values, got {len(values)}")
-        if not all(map(math.isfinite, values)):
-            raise ValueError(f"action must be finite, got {np.ravel(action)} (trajectory seed "
-                             f"{self.traj_seeds[0]})")
-        # np.clip, exactly: np.minimum(np.maximum(x, -1), 1) (no NaN gets here)
-        values = [-1.0 if x < -1.0 else 1.0 if x > 1.0 else float(x) for x in values]
-        action = np.array([values])
-        if self._lean_lead:  # _control() on Python floats: lead = action * max_lead
-            lead = [x * c.max_lead for x in values]
-            self.lead = np.array([lead])
+        if self._lean_lead:  # the 3-D lead, written out (a comprehension costs more)
+            isfinite, (x0, x1, x2) = math.isfinite, values
+            if not (isfinite(x0) and isfinite(x1) and isfinite(x2)):
+                raise ValueError(f"action must be finite, got {np.ravel(action)} (trajectory "
+                                 f"seed {self.traj_seeds[0]})")
+            # np.clip, exactly: np.minimum(np.maximum(x, -1), 1) (no NaN gets here)
+            values = [-1.0 if x0 < -1.0 else 1.0 if x0 > 1.0 else float(x0),
+                      -1.0 if x1 < -1.0 else 1.0 if x1 > 1.0 else float(x1),
+                      -1.0 if x2 < -1.0 else 1.0 if x2 > 1.0 else float(x2)]
+            # (the action as an array only for the terms that take it; prev_action and lead
+            # are made when first read, see _make_step)
+            action = np.array([values]) if self._action_weighed else None
+            # _control() on Python floats: lead = action * max_lead
+            (v0, v1, v2), max_lead = values, c.max_lead
+            lead = [v0 * max_lead, v1 * max_lead, v2 * max_lead]
             collision, depth, unstable = core.step_one(lead)
         else:
+            if not all(map(math.isfinite, values)):
+                raise ValueError(f"action must be finite, got {np.ravel(action)} (trajectory "
+                                 f"seed {self.traj_seeds[0]})")
+            values = [-1.0 if x < -1.0 else 1.0 if x > 1.0 else float(x) for x in values]
+            action = np.array([values])
             self._control(action)
             collision, unstable = bool(core.self_collision[0]), bool(core.unstable[0])
             depth = float(core.collision_depth[0])
         # The 3-vectors' arithmetic written out (a comprehension costs more than its maths).
-        ee = core.tip_pos[0].tolist()
-        (e0, e1, e2), (p0, p1, p2), dt = ee, self._prev_ee[0].tolist(), self.dt
+        # The last tip position: the last step's, while its arrays are still to be made.
+        pending = self._pending_step
+        p0, p1, p2 = self._prev_ee_row.tolist() if pending is None else pending[3]
+        ee, dt = self._tip_row.tolist(), self.dt
+        e0, e1, e2 = ee
         ee_vel = [(e0 - p0) / dt, (e1 - p1) / dt, (e2 - p2) / dt]
-        self.ee_vel[0], self._prev_ee[0] = ee_vel, ee
         step = core.step_count.item(0)
         k = min(step, c.episode_steps)  # the core's path index (its paths have one row more)
         path_pos, path_vel, path_acc = core.path_rows  # (Python rows: no numpy call per row)
@@ -292,28 +337,31 @@ class LeadTask:
                 "termination": w_term if terminated else 0.0,
             }
         reward = sum(terms.values())
-        self.prev_action = action
-        source = {"ee_pos": ee, "ee_vel": ee_vel, "target_pos": target,
-                  "target_vel": path_vel[k], "target_acc": path_acc[k], "prev_action": values,
-                  "tip_error": (dx, dy, dz)}
-        if self._avg_observed:
-            source["tip_error_avg"] = avg
-        if self._joints_observed:
-            source["joint_pos"], source["joint_vel"] = core.qpos[0].tolist(), core.qvel[0].tolist()
-        raw = []
-        for f in self._features:
-            raw += source[f]
+        if self._lean_lead:
+            self._pending_step = (values, lead, ee_vel, ee)
+        else:
+            self.prev_action = action
+            self._ee_vel_row[:], self._prev_ee_row[:] = ee_vel, ee
+        # Every feature's values (in _SOURCES' order), the observed ones picked in the
+        # layout's order and chained: no dict of them, no list in between.
+        joints = self._joints_observed
+        source = (ee, ee_vel, target, path_vel[k], path_acc[k],
+                  core.qpos[0].tolist() if joints else None,
+                  core.qvel[0].tolist() if joints else None,
+                  values, (dx, dy, dz), avg if self._avg_observed else None)
+        raw = chain.from_iterable(self._pick(source))
         if len(self._noisy):
+            raw = list(raw)
             noise = self.rngs[0].normal(0.0, self._noise_std[self._noisy]).tolist()
             for j, v in zip(self._noisy.tolist(), noise, strict=True):
                 raw[j] += v
         # raw * inv_scale to float32 (fromiter: no list in between, and cheaper than np.array)
-        obs = np.fromiter(map(mul, raw, self._inv_scale_list), np.float32, len(raw))
+        obs = np.fromiter(map(mul, raw, self._inv_scale_list), np.float32, self._base_dim)
         if not self._plain_obs or unstable:
             obs = self._observed(obs[None], core.unstable if unstable else None)[0]
         info = {"distance": dist, "reward_terms": terms, "self_collision": collision,
                 "collision_depth": depth, "reachable": self._reachable_row[k],
-                "lead": self.lead[0].copy()}
+                "lead": np.array(lead) if self._lean_lead else self.lead[0].copy()}
         if terminated:
             info["failure"] = "unstable" if unstable else "self_collision"
         return obs, reward, terminated, truncated, info
