@@ -70,6 +70,21 @@ class Controller:
         return replay_controller(leads, seeds, self.config.max_lead)
 
 
+def model_labels(paths) -> list[str]:
+    """A short, distinct label per model path for a study's tables: its file name without
+    .zip, or, where names repeat (each run's best_model.zip), its run folder's name and the
+    file's. Two paths that still share a label are one model named twice: a user error, not
+    a row that silently replaces another."""
+    paths = [Path(p) for p in paths]
+    stems = [p.stem for p in paths]
+    labels = [f"{p.parent.name}/{p.stem}" if stems.count(p.stem) > 1 else p.stem for p in paths]
+    for label in labels:
+        if labels.count(label) > 1:
+            raise UserError(f"two models would share the label {label!r}: "
+                            "give each model once (or rename one)")
+    return labels
+
+
 def build(name: str, steps: int, model: Path | None = None, overrides: dict | None = None,
           tau: float | None = None, stochastic: bool = False, ilc: ILCConfig | None = None
           ) -> Controller:

@@ -63,6 +63,7 @@ def main(args: Args) -> None:
     from panda_lead import controllers
     from panda_lead.atomicio import atomic_write
     from panda_lead.config import EnvConfig
+    from panda_lead.harness import model_labels
     from panda_lead.metrics import compare, diff_text
     from panda_lead.models import load_policy
     from panda_lead.rollout import record_many
@@ -90,12 +91,13 @@ def main(args: Args) -> None:
              "Classical + clearance": (controllers.classical, aware),
              "Analytic": (controllers.make_analytic(), {}),
              "Analytic + clearance": (controllers.make_analytic(), aware)}
-    for i, path in enumerate(args.models):
+    labels = model_labels(args.models)
+    for i, (path, label) in enumerate(zip(args.models, labels, strict=True)):
         policy, env_config, _ = load_policy(path)
-        ctrls[Path(path).stem] = (controllers.make_policy(policy), env_config)
+        ctrls[label] = (controllers.make_policy(policy), env_config)
         if i == 0:
-            ctrls[f"{Path(path).stem} + clearance"] = (controllers.make_policy(policy),
-                                                       {**env_config, **aware})
+            ctrls[f"{label} + clearance"] = (controllers.make_policy(policy),
+                                             {**env_config, **aware})
     record_many(EnvConfig(episode_steps=5), controllers.classical, seeds[:2])  # warm-up: imports, caches
     sets, cpu_us = {}, {}
     for name, (act, base) in ctrls.items():
@@ -105,7 +107,7 @@ def main(args: Args) -> None:
         sets[name] = {r.seed: r for r in record_many(config, act, seeds, nthread=1)}
         cpu_us[name] = (time.process_time() - start) / (len(seeds) * 500) * 1e6
         print(f"  played {name}: {cpu_us[name]:.0f} us CPU per env step", flush=True)
-    ref = Path(args.models[0]).stem
+    ref = labels[0]
     command = ("uv run studies/collision.py --models " + " ".join(map(str, args.models))
                + (f" --clearance {args.clearance}" if args.clearance != 0.02 else ""))
     lines = [f"`{command}`: the {len(seeds)} trajectories of the seed pool (seeds 1000000-1009999, "

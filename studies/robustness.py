@@ -66,8 +66,8 @@ def controllers_at(models: list[Path], level_settings: dict, steps: int) -> dict
 
     out = {"Classical": harness.build("classical", steps, None, level_settings),
            "Analytic": harness.build("analytic", steps, None, level_settings)}
-    for path in models:
-        out[f"RL lead ({Path(path).stem})"] = harness.build("policy", steps, path, level_settings)
+    for path, label in zip(models, harness.model_labels(models), strict=True):
+        out[f"RL lead ({label})"] = harness.build("policy", steps, path, level_settings)
     return out
 
 

@@ -8,8 +8,8 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
-    uv run studies/runs.py curve --studies ikfree_long ikfree v5_err_decay --plot results/ikfree_curve.png
-    uv run studies/runs.py diagnostics --csv results/ikfree_const_lr_diagnostics.csv  # PPO's health per window
+    uv run studies/runs.py curve --studies ikfree_long ikfree --plot results/ikfree_curve.png
+    uv run studies/runs.py diagnostics --csv results/ikfree_long_diagnostics.csv  # PPO's health
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
@@ -425,7 +425,8 @@ def diagnostics(args: Args) -> None:
     print("|---|" + "---|" * len(cols))
     for w in sorted(set().union(*cols.values())):
         cells = [f"{c[w]:.3g}" if w in c else "" for c in cols.values()]
-        print(f"| {w * args.window / 1e6:g}-{(w + 1) * args.window / 1e6:g} | " + " | ".join(cells) + " |")
+        span = f"{w * args.window / 1e6:g}-{(w + 1) * args.window / 1e6:g}"
+        print(f"| {span} | " + " | ".join(cells) + " |")
 
 
 @exit_on_user_error

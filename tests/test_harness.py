@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from panda_lead import harness
+from panda_lead.errors import UserError
 from panda_lead.rollout import iter_record
 from panda_lead.task import LeadTask
 
@@ -139,3 +143,13 @@ def test_a_mapping_flag_changes_only_the_keys_given():
         "target_vel": 0.07, "ee_pos": 0.01}
     ik = model.merged({"ik": {"iters": 2}}).ik
     assert ik.iters == 2 and ik.damping == model.ik.damping
+
+
+def test_models_that_share_a_file_name_get_distinct_labels_or_a_user_error():
+    # Each run's best model is best_model.zip: a study given five of them once drew one row
+    # for all five (the last), silently.
+    runs = [Path(f"sweeps/s/runs/t000{i}__{i}__9/best_model.zip") for i in range(3)]
+    assert harness.model_labels(runs) == [f"t000{i}__{i}__9/best_model" for i in range(3)]
+    assert harness.model_labels([Path("archive/a.zip"), runs[0]]) == ["a", "best_model"]
+    with pytest.raises(UserError, match="share the label 't0000__0__9/best_model'"):
+        harness.model_labels([runs[0], runs[0]])
