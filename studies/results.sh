@@ -49,9 +49,14 @@ if [ "${1:-all}" = all ]; then
   uv run metrics.py --headline classical analytic v5_5m "$H" ilc --force \
     --labels Classical Analytic "RL lead (v5_5m)" "RL lead ($H)" "ILC oracle" \
     --plot results/headline.png
-  # 5. The side studies under the evaluation harness (levels replace a model's own settings).
-  uv run studies/robustness.py --question delay --force \
-    --models archive/indep_v5.zip archive/delayed.zip --seeds 0-499
+  # 5. The side studies under the evaluation harness (levels replace a model's own settings);
+  #    the latency study's 5M policy (every seed of it at 1 and 3 steps) beside the 1M ones.
+  [ -f archive/delayed_5m.zip ] || runs choose --study delayed_5m --archive-as delayed_5m \
+    --runs sweeps/delayed_5m/runs
+  uv run studies/robustness.py --question delay --force --models archive/indep_v5.zip \
+    archive/delayed.zip archive/v5_5m.zip archive/delayed_5m.zip "archive/$H.zip" --seeds 0-499
+  uv run studies/robustness.py --question delay --levels 1 3 --out results/delay_seeds --force \
+    --models sweeps/delayed_5m/runs/*/best_model.zip --seeds 0-499
   uv run studies/robustness.py --question noise --force \
     --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
   uv run studies/collision.py --force --models archive/indep_v5.zip archive/collision_v6.zip \
