@@ -109,7 +109,9 @@ def main(args: Args) -> None:
         print(f"  played {name}: {cpu_us[name]:.0f} us CPU per env step", flush=True)
     ref = labels[0]
     command = ("uv run studies/collision.py --models " + " ".join(map(str, args.models))
-               + (f" --clearance {args.clearance}" if args.clearance != 0.02 else ""))
+               + (f" --clearance {args.clearance}" if args.clearance != 0.02 else "")
+               + (f" --subset {args.subset}" if args.subset else "")
+               + (f" --out {args.out}" if args.out != Path("results/collision.md") else ""))
     lines = [f"`{command}`: the {len(seeds)} trajectories of the seed pool (seeds 1000000-1009999, "
              f"test distribution) whose classical rollout touches itself "
              f"([{seeds_file.name}]({seeds_file.name})); 5 s episodes, early termination off. "

@@ -59,8 +59,12 @@ if [ "${1:-all}" = all ]; then
     --models sweeps/delayed_5m/runs/*/best_model.zip --seeds 0-499
   uv run studies/robustness.py --question noise --force \
     --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
+  [ -f archive/v7_5m.zip ] || runs choose --study v7 --archive-as v7_5m --runs sweeps/v7/runs
   uv run studies/collision.py --force --models archive/indep_v5.zip archive/collision_v6.zip \
-    archive/collision_v7.zip archive/joint.zip --subset results/collision_seeds.txt
+    archive/collision_v7.zip archive/joint.zip archive/v5_5m.zip archive/v7_5m.zip \
+    --subset results/collision_seeds.txt
+  uv run studies/collision.py --force --models archive/v5_5m.zip archive/v7_5m.zip \
+    --subset results/collision_seeds.txt --out results/collision_5m.md  # v7 against v5, both 5M
 fi
 # From committed files only: the spread tables and the paired study comparisons.
 for study in v5 v5_joint climb; do
@@ -69,6 +73,7 @@ done
 runs rank > results/rank.md  # the headline rule, applied to every study (selection data only)
 runs rates --study "$H" > results/rates_500hz.md
 runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
+[ -d results/runs/v7 ] && runs compare --study v7 --against-study v5_joint > results/v7_vs_v5_joint.md
 [ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
 for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \
     v7 delayed_5m noisy_5m; do
