@@ -48,6 +48,7 @@ elif [ "$1" = next ]; then
   sweep --name ikfree_kl --presets ikfree_err_kl --seeds 1 2 3
   # the headline's configuration trained with latency: does the tip error survive a delay
   # when the policy learns with one? (docs/questions.md 2: untrained, it collapses at 1 step)
+  # (seeds 1 and 2 ran on 2026-11-24: docs/questions.md 2; seed 3 has not)
   sweep --name err_delayed --presets v5_err_decay --seeds 1 2 3 \
     --train-args="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
 else

@@ -12,7 +12,8 @@ if [ "${1:-all}" = all ]; then
   # 1. One committed summary per training run (config, curve, best model's hash, its metrics
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
-      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m; do
+      v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m \
+      err_delayed; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -f results/runs/baselines.json ] || runs baselines
@@ -57,6 +58,10 @@ if [ "${1:-all}" = all ]; then
     archive/delayed.zip archive/v5_5m.zip archive/delayed_5m.zip "archive/$H.zip" --seeds 0-499
   uv run studies/robustness.py --question delay --levels 1 3 --out results/delay_seeds --force \
     --models sweeps/delayed_5m/runs/*/best_model.zip --seeds 0-499
+  #    the headline's configuration trained with delay (2 seeds), beside delayed_5m's chosen seed
+  [ -d sweeps/err_delayed/runs ] && uv run studies/robustness.py --question delay --force \
+    --out results/delay_err --models archive/delayed_5m.zip "archive/$H.zip" \
+    sweeps/err_delayed/runs/*/best_model.zip --seeds 0-499
   uv run studies/robustness.py --question noise --force \
     --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
   [ -f archive/v7_5m.zip ] || runs choose --study v7 --archive-as v7_5m --runs sweeps/v7/runs
@@ -74,6 +79,8 @@ runs rank > results/rank.md  # the headline rule, applied to every study (select
 runs rates --study "$H" > results/rates_500hz.md
 runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
 [ -d results/runs/v7 ] && runs compare --study v7 --against-study v5_joint > results/v7_vs_v5_joint.md
+[ -d results/runs/err_delayed ] && runs report --study err_delayed > results/spread_err_delayed.md \
+  && runs compare --study err_delayed --against-study delayed_5m > results/err_delayed_vs_delayed_5m.md
 [ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
 for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \
     v7 delayed_5m noisy_5m; do
