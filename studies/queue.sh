@@ -41,16 +41,20 @@ if [ "${1:-main}" = main ]; then
     --eval-freq 250000
   sweep --name ikfree_5m --presets ikfree_err_decay --seeds 1 2 3  # its spread at the presets' budget
 elif [ "$1" = next ]; then
-  # Not yet run (2026-11-24): the noise study's policy at the presets' budget, the IK-free
-  # policy at 1e-3 held together by SB3's KL guard instead of a smaller rate, and the
-  # headline's configuration trained with latency.
+  # Queued on 2026-11-24: the noise study's policy at the presets' budget, the IK-free
+  # policy at 1e-3 held together by SB3's KL guard instead of a smaller rate (not yet run),
+  # the headline's configuration trained with latency, and a larger network.
   sweep --name noisy_5m --presets noisy --seeds 1 2 3 4 5
   sweep --name ikfree_kl --presets ikfree_err_kl --seeds 1 2 3
   # the headline's configuration trained with latency: does the tip error survive a delay
   # when the policy learns with one? (docs/questions.md 2: untrained, it collapses at 1 step)
-  # (seeds 1 and 2 ran on 2026-11-24: docs/questions.md 2; seed 3 has not)
-  sweep --name err_delayed --presets v5_err_decay --seeds 1 2 3 \
-    --train-args="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
+  # Seeds 1 and 2 ran as the grid `err_delayed`; a grid's seeds are fixed, so seed 3 is its
+  # own study folder, summarized into err_delayed (studies/results.sh).
+  D="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
+  sweep --name err_delayed --presets v5_err_decay --seeds 1 2 --train-args="$D"
+  sweep --name err_delayed_s3 --presets v5_err_decay --seeds 3 --train-args="$D"
+  # the climb: a larger network on the headline's configuration (docs/questions.md 6)
+  sweep --name v5_err_decay_wide --presets v5_err_decay_wide --seeds 1 2 3
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
   sweep --name noisy --presets noisy --seeds 1 2 3

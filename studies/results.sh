@@ -13,9 +13,11 @@ if [ "${1:-all}" = all ]; then
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
       v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m \
-      err_delayed; do
+      err_delayed v5_err_decay_wide; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
+  [ -d sweeps/err_delayed_s3/runs ] && runs summarize --study err_delayed \
+    --runs sweeps/err_delayed_s3/runs/*/  # its third seed, a study folder of its own
   [ -f results/runs/baselines.json ] || runs baselines
   # 2. The archived models: v5's chosen run (v5_5m) and the headline, the climb's best study
   #    (the lowest evaluation-set error of all, docs/questions.md 6), each its study's chosen
@@ -56,12 +58,15 @@ if [ "${1:-all}" = all ]; then
     --runs sweeps/delayed_5m/runs
   uv run studies/robustness.py --question delay --force --models archive/indep_v5.zip \
     archive/delayed.zip archive/v5_5m.zip archive/delayed_5m.zip "archive/$H.zip" --seeds 0-499
+  #    every seed's model is committed (archive/seeds/, `runs keep`), so these two re-run from git
+  for study in delayed_5m err_delayed; do
+    [ -d "sweeps/$study/runs" ] && runs keep --study "$study" --runs sweeps/"$study"*/runs
+  done
   uv run studies/robustness.py --question delay --levels 1 3 --out results/delay_seeds --force \
-    --models sweeps/delayed_5m/runs/*/best_model.zip --seeds 0-499
-  #    the headline's configuration trained with delay (2 seeds), beside delayed_5m's chosen seed
-  [ -d sweeps/err_delayed/runs ] && uv run studies/robustness.py --question delay --force \
-    --out results/delay_err --models archive/delayed_5m.zip "archive/$H.zip" \
-    sweeps/err_delayed/runs/*/best_model.zip --seeds 0-499
+    --models archive/seeds/delayed_5m_s*.zip --seeds 0-499
+  #    the headline's configuration trained with delay (3 seeds), beside delayed_5m's chosen seed
+  uv run studies/robustness.py --question delay --force --out results/delay_err \
+    --models archive/delayed_5m.zip "archive/$H.zip" archive/seeds/err_delayed_s*.zip --seeds 0-499
   uv run studies/robustness.py --question noise --force \
     --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
   [ -f archive/v7_5m.zip ] || runs choose --study v7 --archive-as v7_5m --runs sweeps/v7/runs
@@ -83,7 +88,7 @@ runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
   && runs compare --study err_delayed --against-study delayed_5m > results/err_delayed_vs_delayed_5m.md
 [ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
 for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \
-    v7 delayed_5m noisy_5m; do
+    v7 delayed_5m noisy_5m v5_err_decay_wide; do
   [ -d "results/runs/$study" ] || continue
   runs report --study "$study" > "results/spread_$study.md"
   runs compare --study "$study" --against-study v5 > "results/${study}_vs_v5.md"
@@ -97,7 +102,7 @@ if [ -d results/runs/ikfree_long ]; then
 fi
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
-    "v5_err_decay_smooth v5_err_decay"; do
+    "v5_err_decay_smooth v5_err_decay" "v5_err_decay_wide v5_err_decay"; do
   set -- $pair
   [ -d "results/runs/$1" ] && [ -d "results/runs/$2" ] || continue
   runs compare --study "$1" --against-study "$2" > "results/$1_vs_$2.md"

@@ -124,8 +124,11 @@ def _fmt(x: float, ci: tuple[float, float]) -> str:
 
 
 def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:
+    extra = (f" --levels {' '.join(f'{x:g}' for x in args.levels)}" if args.levels else "") + (
+        f" --out {args.out}" if args.out != Path("results") else "")
     lines = [f"`uv run studies/robustness.py --question {args.question} --models "
-             f"{' '.join(map(str, args.models))} --seeds {args.seeds}` ({len(seeds)} test seeds, "
+             f"{' '.join(map(str, args.models))} --seeds {args.seeds}{extra}` ({len(seeds)} "
+             "test seeds, "
              f"{time.strftime('%Y-%m-%d')}); differences are controller - analytic at the same "
              "level, paired by seed, 95% bootstrap CIs. Every controller sees exactly the "
              "level (a model's own training noise or delay is not inherited); n = "

@@ -5,6 +5,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py baselines                                 # -> results/runs/baselines.json
     uv run studies/runs.py report --study v5                         # spread table (markdown)
     uv run studies/runs.py choose --study v5 [--archive-as indep_v5 --runs sweeps/v5/runs]
+    uv run studies/runs.py keep --study delayed_5m --runs sweeps/delayed_5m/runs  # each seed
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
@@ -17,7 +18,8 @@ eval_freq steps), its best evaluation, the SHA-256 of its best model, and that m
 per-trajectory test metrics on the 1,000 test seeds (mean error, settled error, jerk). The
 baselines file holds the same per-trajectory metrics of the classical controller and the
 analytic lead, at 100 Hz and with the IK at 500 Hz. `report` and `choose` read only these
-files.
+files. `keep` commits every seed's best model (archive/seeds/<study>_s<N>.zip and its
+sidecar), for the tables that evaluate each seed and not only the chosen one.
 
 The choice rule (`choose`): the run with the lowest best evaluation-set error (never a test
 seed); a tie (equal to 0.01 cm, the printed precision) goes to the lower training seed.
@@ -48,11 +50,11 @@ KEYS = ("mean_err", "settled_err", "jerk_rms")
 class Args:
     command: tyro.conf.Positional[Literal["summarize", "baselines", "report", "choose",
                                           "compare", "rates", "rank", "curve",
-                                          "diagnostics"]]
+                                          "diagnostics", "keep"]]
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
-    choose --archive-as: the folder holding the study's run folders."""
+    choose --archive-as: the folder holding the study's run folders; keep: the folders."""
     study: str = "v5"
     """The study's name: its summaries live in results/runs/<study>/."""
     against: str = "analytic"
@@ -306,6 +308,38 @@ def choose(args: Args) -> None:
         print(f"archived {path}")
 
 
+SEEDS_DIR = Path("archive/seeds")
+
+
+def keep(args: Args) -> None:
+    """Every seed's best model of a study into archive/seeds/<study>_s<N>.zip (weights and
+    sidecar, no card: these are evaluated in tables, the chosen run is the one to use). Each
+    must be the model its committed summary was computed from (same SHA-256)."""
+    from panda_lead.models import archive_lock, copy_with_sidecar, pair_state, verify
+
+    if not args.runs:
+        raise UserError("keep needs --runs FOLDER..., the folders holding the study's run folders")
+    for s in load_study(args.study):
+        found = [Path(d) / s["run"] / "best_model.zip" for d in args.runs]
+        found = [f for f in found if f.is_file()]
+        if not found:
+            raise UserError(f"run {s['run']} is in none of {[str(d) for d in args.runs]}: keep "
+                            "on the machine that trained it")
+        src = found[0]
+        if verify(src)["model_sha256"] != s["best_model_sha256"]:
+            raise UserError(f"{src} is not the model results/runs/{args.study}/seed_{s['seed']}"
+                            ".json summarizes (its SHA-256 differs): summarize again")
+        dst = SEEDS_DIR / f"{args.study}_s{s['seed']}.zip"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        with archive_lock(dst):
+            if pair_state(dst) != "absent" and not args.force:
+                print(f"{dst} exists (add --force to replace it)")
+                continue
+            copy_with_sidecar(src, dst, {"name": dst.stem, "source": str(src),
+                                         "study": args.study, "seed": s["seed"]})
+        print(f"kept {dst}")
+
+
 def rank(args: Args) -> None:
     """Every study with committed summaries, ordered by the mean of its seeds' best
     evaluation-set errors (selection data only; test numbers are shown, never used)."""
@@ -433,7 +467,7 @@ def diagnostics(args: Args) -> None:
 def main(args: Args) -> None:
     {"summarize": summarize, "baselines": baselines, "report": report, "choose": choose,
      "compare": compare_studies, "rates": rates, "rank": rank, "curve": curve,
-     "diagnostics": diagnostics}[args.command](args)
+     "diagnostics": diagnostics, "keep": keep}[args.command](args)
 
 
 if __name__ == "__main__":

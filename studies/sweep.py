@@ -289,6 +289,21 @@ def grid_space(args: Args) -> dict:
     return {"preset": list(args.presets), "seed": list(args.seeds)}
 
 
+def check_grid_unchanged(study, args: Args) -> None:
+    """A grid study's points are fixed by its first trial (Optuna refuses a categorical whose
+    choices change, and a trial would fail on it): adding a seed is one clear line, not a
+    failed trial and a sweep that reports success."""
+    space = grid_space(args)
+    for t in study.get_trials(deepcopy=False):
+        for name, dist in t.distributions.items():
+            if name in space and list(dist.choices) != space[name]:
+                raise UserError(
+                    f"study {study.study_name!r} is a grid over {name} {list(dist.choices)}, "
+                    f"not {space[name]}: a grid's points cannot change; run the new points under "
+                    "another --name and summarize both runs folders into one study "
+                    "(studies/runs.py summarize --study NAME --runs A/runs/*/ B/runs/*/)")
+
+
 def make_study(args: Args, storage):
     import optuna
 
@@ -373,6 +388,8 @@ def work(args: Args) -> None:
 
     storage = storage_for(args, args.name)
     study = make_study(args, storage)
+    if not args.search:
+        check_grid_unchanged(study, args)
     n_grid = math.prod(len(v) for v in grid_space(args).values())
 
     while True:
@@ -409,7 +426,9 @@ def launch(args: Args) -> None:
     if args.workers <= 1:
         work(args)
         return
-    storage_for(args, args.name)  # create the schema once, before the workers race for it
+    storage = storage_for(args, args.name)  # the schema once, before the workers race for it
+    if not args.search:
+        check_grid_unchanged(make_study(args, storage), args)
     # sys.argv holds no password (take_password); PGPASSWORD reaches the workers through the
     # environment they inherit, which, unlike a command line, other users cannot read.
     procs = [subprocess.Popen([sys.executable, __file__, *sys.argv[1:], "--worker-id", str(i)])

@@ -391,3 +391,34 @@ def test_a_sqlite_study_locked_mid_trial_is_one_line(tmp_path, monkeypatch, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: the study storage sqlite:///sweeps/locked.db failed: database is "
                    "locked; finished trials are kept, rerun the same command to continue"]
+
+
+def test_a_grid_given_new_seeds_is_one_line_not_a_failed_trial(tmp_path, monkeypatch, capsys):
+    """queue.sh asked an existing 2-seed study for seeds 1 2 3: Optuna refused the changed
+    categorical inside the trial, the sweep caught it as a failed trial and exited 0 having
+    trained nothing. The training is a stub; the storage, Optuna and the check are real."""
+    from panda_lead import training
+
+    sweep_module = _load_sweep(monkeypatch)
+    monkeypatch.chdir(tmp_path)
+    trained = []
+
+    def stub_train(targs, on_eval=None, extra=None):
+        run_dir = tmp_path / f"run{len(trained)}"
+        run_dir.mkdir()
+        (run_dir / "best.json").write_text('{"mean_error_cm": 3.0}')
+        trained.append(targs.seed)
+        return run_dir
+
+    monkeypatch.setattr(training, "train", stub_train)
+    argv = ["sweep.py", "--name", "g", "--presets", "v5", "--timesteps", "256", "--seeds"]
+    monkeypatch.setattr(sys, "argv", argv + ["1", "2"])
+    sweep_module.main()
+    assert sorted(trained) == [1, 2]
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "argv", argv + ["1", "2", "3"])
+    with pytest.raises(SystemExit) as exc:
+        sweep_module.main()
+    assert exc.value.code == 2 and sorted(trained) == [1, 2]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a grid over seed [1, 2], not [1, 2, 3]" in err[0]

@@ -119,3 +119,34 @@ def test_diagnostics_keep_every_evaluation_and_every_8th_update_and_average_per_
     out.write_text("a,b\n1,2\n")
     with pytest.raises(runs.UserError, match="not a diagnostics file"):
         runs.diagnostics(runs.Args("diagnostics", csv=out))
+
+
+def test_keep_commits_every_seed_only_if_it_is_the_model_its_summary_measured(
+        runs, tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from panda_lead.models import verify
+
+    sweep = tmp_path / "sweep"
+    for seed, name in ((1, "indep_v5"), (2, "noisy")):  # two real models as two runs' best
+        (sweep / f"r{seed}").mkdir(parents=True)
+        shutil.copy2(ROOT / "archive" / f"{name}.zip", sweep / f"r{seed}" / "best_model.zip")
+        shutil.copy2(ROOT / "archive" / f"{name}.json", sweep / f"r{seed}" / "best_model.json")
+    write_study(tmp_path, "s", {1: 2.0, 2: 2.1}, 2.0)
+    monkeypatch.setattr(runs, "SEEDS_DIR", tmp_path / "kept")
+    with pytest.raises(runs.UserError, match="seed_1.json summarizes"):  # the summary's hash is 0s
+        runs.keep(runs.Args("keep", study="s", runs=[sweep]))
+    assert not list((tmp_path / "kept").glob("*.zip"))
+    for seed in (1, 2):  # the summaries name the models the runs hold
+        f = tmp_path / "s" / f"seed_{seed}.json"
+        summary = json.loads(f.read_text())
+        summary["best_model_sha256"] = verify(sweep / f"r{seed}" / "best_model.zip")["model_sha256"]
+        f.write_text(json.dumps(summary))
+    runs.keep(runs.Args("keep", study="s", runs=[sweep]))
+    kept = tmp_path / "kept" / "s_s2.zip"
+    side = verify(kept)  # a valid pair, loadable by every script
+    assert (side["study"], side["seed"]) == ("s", 2)
+    assert side["env_config"] == verify(ROOT / "archive" / "noisy.zip")["env_config"]
+    capsys.readouterr()
+    runs.keep(runs.Args("keep", study="s", runs=[sweep]))  # never replaced unasked
+    assert capsys.readouterr().out.count("exists") == 2
