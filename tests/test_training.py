@@ -396,3 +396,19 @@ def test_target_kl_stops_an_updates_epochs_early(tmp_path):
     assert parse_args(["--preset", "ikfree_err_kl"]).target_kl == 0.02
     with pytest.raises(UserError, match="--target-kl"):
         TrainConfig(target_kl=0.0)
+
+
+def test_a_model_names_the_commit_its_process_imported_not_the_tree_at_save_time(
+        tmp_path, monkeypatch):
+    """A sweep's trials (or a save after someone edits the tree) ran the code imported at the
+    start, but the sidecar read git at each save: it could name a commit or a clean tree the
+    weights were not trained with."""
+    from panda_lead import models
+    from panda_lead.training import loop, train
+
+    monkeypatch.setattr(models, "git_commit", lambda: "a-later-tree")  # the tree moves on
+    args = parse_args(["--timesteps", "256", "--eval-freq", "128", "--runs-dir",
+                       str(tmp_path / "runs"), *TINY])
+    run_dir = train(args)
+    for name in ("best_model.zip", "final_model.zip"):
+        assert models.verify(run_dir / name)["commit"] == loop.CODE_COMMIT != "a-later-tree"

@@ -22,6 +22,7 @@ from ..atomicio import folder_lock
 from ..errors import UserError
 from ..models import (
     ModelError,
+    git_commit,
     load_training_state,
     save_model,
     verify,
@@ -41,6 +42,11 @@ from .callbacks import (
 )
 from .config import RESUME_MAY_CHANGE, TrainArgs, TrainConfig, check_fits, read_run_config
 from .envs import make_vec_env
+
+# The code this process trains with: read when the training code is imported, not when a
+# model is saved (a sweep's later trial, or a save after someone edits the tree, would name
+# a commit or a clean tree it does not run). "+dirty": tracked files differed from it.
+CODE_COMMIT = git_commit()
 
 
 class TrainingInterrupted(Exception):
@@ -167,7 +173,8 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
 
     def sidecar(steps: int, **more) -> dict:
         return {"env_config": config.env.to_dict(), "train_config": config.to_dict(),
-                "timesteps": int(steps), "wall_time_s": round(clock.elapsed(), 1), **more}
+                "timesteps": int(steps), "wall_time_s": round(clock.elapsed(), 1),
+                "commit": CODE_COMMIT, **more}
 
     def save(model, path: Path, steps: int, **more) -> Path:
         return save_model(model, path, sidecar(steps, **more))
