@@ -229,10 +229,12 @@ def test_render_returns_one_frame_per_env_from_the_single_envs_renderer():
     sync.reset(seed=1)
     native.render(), sync.render()  # a fresh MuJoCo renderer's first frame differs slightly
     rng = np.random.default_rng(0)
-    for _ in range(STEPS + 2):  # across an autoreset (the trail starts again)
+    for i in range(STEPS + 2):  # across an autoreset (the trail starts again)
         a = rng.uniform(-1, 1, (N, 3)).astype(np.float32)
         native.step(a)
         sync.step(a)
+        if i not in (0, 1, STEPS - 2, STEPS - 1, STEPS, STEPS + 1):
+            continue  # a software-rendered frame costs ~0.15 s: around the autoreset only
         frames = native.render()
         assert isinstance(frames, tuple) and len(frames) == N
         assert frames[0].shape == (48, 64, 3) and frames[0].dtype == np.uint8
