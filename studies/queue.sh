@@ -12,7 +12,8 @@
 #   ikfree    no IK: the policy outputs the 7 joint goals (one seed; its curve is the result),
 #             and ikfree_long (ikfree_err_decay: + the tip error, 3e-4 decayed) to 30M steps
 # The side studies of docs/questions.md (noise, latency, self-collision, joint residual,
-# curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side.
+# curriculum, v9) ran at 1M steps x 3 seeds: TIMESTEPS=1000000 bash studies/queue.sh side;
+# at the presets' budget they are `bash studies/queue.sh side5m` (not yet run).
 # What is queued but not yet run: bash studies/queue.sh next.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -55,6 +56,12 @@ elif [ "$1" = next ]; then
   sweep --name err_delayed_s3 --presets v5_err_decay --seeds 3 --train-args="$D"
   # the climb: a larger network on the headline's configuration (docs/questions.md 6)
   sweep --name v5_err_decay_wide --presets v5_err_decay_wide --seeds 1 2 3
+elif [ "$1" = side5m ]; then
+  # The 1M side studies at the presets' budget, 5 seeds each (not yet run: ~15 runs of ~10
+  # minutes on 2 cores); each compares with v5's 5 seeds (`runs.py compare --against-study v5`).
+  sweep --name curriculum_5m --presets v5 --seeds 1 2 3 4 5 --train-args="--curriculum-steps 500000"
+  sweep --name joint_5m --presets joint --seeds 1 2 3 4 5
+  sweep --name v9_5m --presets v9 --seeds 1 2 3 4 5
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
   sweep --name noisy --presets noisy --seeds 1 2 3
