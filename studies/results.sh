@@ -67,8 +67,14 @@ if [ "${1:-all}" = all ]; then
   #    the headline's configuration trained with delay (3 seeds), beside delayed_5m's chosen seed
   uv run studies/robustness.py --question delay --force --out results/delay_err \
     --models archive/delayed_5m.zip "archive/$H.zip" archive/seeds/err_delayed_s*.zip --seeds 0-499
-  uv run studies/robustness.py --question noise --force \
-    --models archive/indep_v5.zip archive/noisy.zip --seeds 0-499
+  [ -f archive/noisy_5m.zip ] || runs choose --study noisy_5m --archive-as noisy_5m \
+    --runs sweeps/noisy_5m/runs
+  [ -d sweeps/noisy_5m/runs ] && runs keep --study noisy_5m --runs sweeps/noisy_5m/runs
+  uv run studies/robustness.py --question noise --force --models archive/indep_v5.zip \
+    archive/noisy.zip archive/v5_5m.zip archive/noisy_5m.zip "archive/$H.zip" \
+    "archive/$S.zip" --seeds 0-499
+  uv run studies/robustness.py --question noise --levels 1 2 --out results/noise_seeds --force \
+    --models archive/seeds/noisy_5m_s*.zip --seeds 0-499
   [ -f archive/v7_5m.zip ] || runs choose --study v7 --archive-as v7_5m --runs sweeps/v7/runs
   uv run studies/collision.py --force --models archive/indep_v5.zip archive/collision_v6.zip \
     archive/collision_v7.zip archive/joint.zip archive/v5_5m.zip archive/v7_5m.zip \
