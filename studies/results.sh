@@ -28,6 +28,13 @@ if [ "${1:-all}" = all ]; then
   [ -f "archive/$S.zip" ] || runs choose --study "$S" --archive-as "$S" --runs "sweeps/$S/runs"
   [ -f results/ikfree_long_diagnostics.csv ] || runs diagnostics --runs sweeps/ikfree_long/runs/*/ \
     --csv results/ikfree_long_diagnostics.csv  # PPO's health per window (docs/questions.md 7)
+  for seed in 1 2 3; do  # PPO's health with the wider network against the headline's (questions.md 6)
+    for study in v5_err_decay v5_err_decay_wide; do
+      f="results/${study}_s${seed}_diagnostics.csv"
+      [ -f "$f" ] || runs diagnostics --runs sweeps/"$study"/runs/*__"$seed"__*/ --csv "$f" \
+        --window 1000000
+    done
+  done
   [ -f archive/ikfree_long.zip ] || runs choose --study ikfree_long --archive-as ikfree_long \
     --runs sweeps/ikfree_long/runs  # no IK, 30M steps (docs/questions.md 7)
   # 3. Rollout sets on the test seeds; the oracle (20 replays per trajectory, started from the
