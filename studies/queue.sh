@@ -56,6 +56,10 @@ elif [ "$1" = next ]; then
   sweep --name err_delayed_s3 --presets v5_err_decay --seeds 3 --train-args="$D"
   # the climb: a larger network on the headline's configuration (docs/questions.md 6)
   sweep --name v5_err_decay_wide --presets v5_err_decay_wide --seeds 1 2 3
+  # ... with its step matched: at 1e-3 its KL per update was 2-6x the headline's (questions.md 6).
+  # One seed (3) ran on 2026-11-25 as a pilot; rerunning this line continues with seeds 1 and 2.
+  sweep --name v5_err_decay_wide_lr3e-4 --presets v5_err_decay_wide --seeds 1 2 3 \
+    --train-args="--learning-rate 3e-4"
 elif [ "$1" = side5m ]; then
   # The 1M side studies at the presets' budget, 5 seeds each (not yet run: ~15 runs of ~10
   # minutes on 2 cores); each compares with v5's 5 seeds (`runs.py compare --against-study v5`).

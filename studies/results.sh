@@ -13,7 +13,7 @@ if [ "${1:-all}" = all ]; then
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
       v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m \
-      err_delayed v5_err_decay_wide; do
+      err_delayed v5_err_decay_wide v5_err_decay_wide_lr3e-4; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -d sweeps/err_delayed_s3/runs ] && runs summarize --study err_delayed \
@@ -29,9 +29,9 @@ if [ "${1:-all}" = all ]; then
   [ -f results/ikfree_long_diagnostics.csv ] || runs diagnostics --runs sweeps/ikfree_long/runs/*/ \
     --csv results/ikfree_long_diagnostics.csv  # PPO's health per window (docs/questions.md 7)
   for seed in 1 2 3; do  # PPO's health with the wider network against the headline's (questions.md 6)
-    for study in v5_err_decay v5_err_decay_wide; do
+    for study in v5_err_decay v5_err_decay_wide v5_err_decay_wide_lr3e-4; do
       f="results/${study}_s${seed}_diagnostics.csv"
-      [ -f "$f" ] || runs diagnostics --runs sweeps/"$study"/runs/*__"$seed"__*/ --csv "$f" \
+      [ -f "$f" ] || [ ! -d "sweeps/$study/runs" ] || [ -z "$(ls -d sweeps/"$study"/runs/*__"$seed"__*/ 2>/dev/null)" ] || runs diagnostics --runs sweeps/"$study"/runs/*__"$seed"__*/ --csv "$f" \
         --window 1000000
     done
   done
@@ -90,7 +90,7 @@ if [ "${1:-all}" = all ]; then
     --subset results/collision_seeds.txt --out results/collision_5m.md  # v7 against v5, both 5M
 fi
 # From committed files only: the spread tables and the paired study comparisons.
-for study in v5 v5_joint climb; do
+for study in v5 v5_joint climb v5_err_decay_wide_lr3e-4; do
   [ -d "results/runs/$study" ] && runs report --study "$study" > "results/spread_$study.md"
 done
 runs rank > results/rank.md  # the headline rule, applied to every study (selection data only)
@@ -115,7 +115,8 @@ if [ -d results/runs/ikfree_long ]; then
 fi
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
-    "v5_err_decay_smooth v5_err_decay" "v5_err_decay_wide v5_err_decay"; do
+    "v5_err_decay_smooth v5_err_decay" "v5_err_decay_wide v5_err_decay" \
+    "v5_err_decay_wide_lr3e-4 v5_err_decay"; do
   set -- $pair
   [ -d "results/runs/$1" ] && [ -d "results/runs/$2" ] || continue
   runs compare --study "$1" --against-study "$2" > "results/$1_vs_$2.md"
