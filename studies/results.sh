@@ -88,6 +88,10 @@ if [ "${1:-all}" = all ]; then
     --subset results/collision_seeds.txt
   uv run studies/collision.py --force --models archive/v5_5m.zip archive/v7_5m.zip \
     --subset results/collision_seeds.txt --out results/collision_5m.md  # v7 against v5, both 5M
+  #    every v7 seed (committed, `runs keep`) against v5_5m's model (v5's 5M run folders are gone)
+  [ -d sweeps/v7/runs ] && runs keep --study v7 --runs sweeps/v7/runs
+  uv run studies/collision.py --force --models archive/v5_5m.zip archive/seeds/v7_s*.zip \
+    --subset results/collision_seeds.txt --out results/collision_seeds_v7/collision.md
 fi
 # From committed files only: the spread tables and the paired study comparisons.
 for study in v5 v5_joint climb v5_err_decay_wide_lr3e-4; do
