@@ -50,7 +50,8 @@ elif [ "$1" = next ]; then
   # the headline's configuration trained with latency: does the tip error survive a delay
   # when the policy learns with one? (docs/questions.md 2: untrained, it collapses at 1 step)
   # Seeds 1 and 2 ran as the grid `err_delayed`; a grid's seeds are fixed, so seed 3 is its
-  # own study folder, summarized into err_delayed (studies/results.sh).
+  # own study folder, summarized into err_delayed (studies/results.sh). The preset
+  # `err_delayed` names the same config (a test checks it against the committed summaries).
   D="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
   sweep --name err_delayed --presets v5_err_decay --seeds 1 2 --train-args="$D"
   sweep --name err_delayed_s3 --presets v5_err_decay --seeds 3 --train-args="$D"
@@ -58,6 +59,7 @@ elif [ "$1" = next ]; then
   sweep --name v5_err_decay_wide --presets v5_err_decay_wide --seeds 1 2 3
   # ... with its step matched: at 1e-3 its KL per update was 2-6x the headline's (questions.md 6).
   # One seed (3) ran on 2026-11-25 as a pilot; rerunning this line continues with seeds 1 and 2.
+  # The preset `v5_err_decay_wide_slow` names the same config.
   sweep --name v5_err_decay_wide_lr3e-4 --presets v5_err_decay_wide --seeds 1 2 3 \
     --train-args="--learning-rate 3e-4"
 elif [ "$1" = side5m ]; then

@@ -55,6 +55,19 @@ def test_reference_hparams_is_a_starting_point_that_flags_override():
     assert (args.n_envs, args.n_steps, args.learning_rate) == (4, 1024, 3e-4)
 
 
+@pytest.mark.parametrize("study, preset", [("err_delayed", "err_delayed"),
+                                           ("v5_err_decay_wide_lr3e-4", "v5_err_decay_wide_slow")])
+def test_a_preset_names_exactly_what_a_flag_trained_study_ran(study, preset):
+    # These studies were trained as a preset plus flags (`--train-args`); their committed
+    # summaries carry the whole config, and the preset named after them must reproduce it.
+    for f in sorted((ROOT / "results" / "runs" / study).glob("seed_*.json")):
+        trained = json.loads(f.read_text())["train_config"]
+        named = PRESETS[preset].to_dict()
+        for key in ("seed", "preset"):
+            trained.pop(key), named.pop(key)
+        assert trained == named, f.name
+
+
 def test_preset_help_shows_the_presets_values_and_no_internal_flags(tmp_path):
     out = run(ROOT / "train.py", "--preset", "v4", "--help", cwd=tmp_path)
     assert out.returncode == 0, out.stderr

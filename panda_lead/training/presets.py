@@ -90,6 +90,12 @@ PRESETS.update([
     _preset("v5_err_decay_wide", "v5_err_decay with 256x256 networks (64x64 elsewhere)",
             env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
             net_arch=(256, 256)),
+    # ... with its step matched: at 1e-3 the wider policy's KL per update was 2-6x the
+    # headline's (results/v5_err_decay_wide_s*_diagnostics.csv); at 3e-4 it is 0.006-0.010.
+    _preset("v5_err_decay_wide_slow", "v5_err_decay_wide at a learning rate of 3e-4 (decayed "
+            "linearly to 0), its step size matched to the headline's",
+            env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
+            net_arch=(256, 256), learning_rate=3e-4),
     _preset("v5_decay", "v5 with the learning rate decayed linearly to 0",
             env=dict(obs_features=OBS_15), lr_schedule="linear"),
     # v7's reward without v7's joint state and termination: -distance plus exp(-distance / 5 cm),
@@ -106,6 +112,12 @@ PRESETS.update([
     _preset("delayed", "v5 trained with latency: observation and action delays drawn per "
             "episode from 0-3 control steps",
             env=dict(obs_features=OBS_15, obs_delay=3, action_delay=3, random_delay=True)),
+    # The headline's configuration trained with the latency study's delays: does the tip error
+    # survive a delay when the policy learns with one? (docs/questions.md 2)
+    _preset("err_delayed", "v5_err_decay trained with observation and action delays drawn per "
+            "episode from 0-3 control steps",
+            env=dict(obs_features=OBS_15 + ("tip_error",), obs_delay=3, action_delay=3,
+                     random_delay=True), lr_schedule="linear"),
     # The reference work's wish: no IK at all. The policy outputs the joint goals itself and
     # sees the joint state it must act on (29-D), v5's reward.
     _preset("ikfree", "no IK: the action is the 7 joint goals (29-D observation, v5's reward)",
