@@ -115,7 +115,8 @@ if [ -d results/runs/ikfree_long ]; then
   runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
   [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md \
     && runs compare --study ikfree_5m --against-study "$H" > "results/ikfree_5m_vs_$H.md"
-  runs curve --studies ikfree_long ikfree "$H" --plot results/ikfree_curve.png
+  runs curve --studies ikfree_long ikfree "$H" --plot results/ikfree_curve.png \
+    --stopped results/ikfree_const_lr_diagnostics.csv results/ikfree_err_lr1e-3_diagnostics.csv
 fi
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \

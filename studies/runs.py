@@ -72,6 +72,10 @@ class Args:
     """curve: the studies whose evaluation curves are drawn (every seed of each)."""
     plot: Path | None = None
     """curve: the figure's path (PNG)."""
+    stopped: list[Path] = field(default_factory=list)
+    """curve: diagnostics files (`diagnostics --csv`) of runs stopped before their end, which
+    have no summary: their evaluation rows are drawn dashed, so a run that came apart stays
+    in the figure."""
     csv: Path | None = None
     """diagnostics: the run's diagnostics file (written from --runs RUN when given, else read)."""
     window: int = 2_000_000
@@ -380,16 +384,21 @@ def curve(args: Args) -> None:
     if len(steps) != 1:
         raise UserError(f"the studies were evaluated on episodes of different lengths: {steps}")
     (eval_steps,) = steps
+    stopped = {str(p): _stopped_curve(p) for p in args.stopped}  # a bad file fails before the work
     refs = {name: evaluate(ctrl, EnvConfig(), eval_steps)["mean_error_cm"]
             for name, ctrl in (("classical", classical), ("analytic lead", make_analytic()))}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.8), constrained_layout=True)
-    colours = colours_for(list(studies))
+    colours = colours_for([*studies, *map(str, args.stopped)])
     for name, runs in studies.items():
         for i, s in enumerate(runs):
             x, y = np.array(s["eval_curve"], dtype=float).T
             ax.plot(x, y, color=colours[name], lw=1, alpha=0.8,
                     label=f"{name} ({len(runs)} seed{'s' * (len(runs) > 1)})" if i == 0 else None)
+    for path, (x, y) in stopped.items():
+        ax.plot(x, y, color=colours[path], lw=1, ls="--",
+                label=f"{Path(path).stem.removesuffix('_diagnostics')} (stopped at "
+                      f"{x[-1] / 1e6:.1f}M)")
     for (name, cm), style in zip(refs.items(), ("--", ":"), strict=True):
         ax.axhline(cm, color="grey", ls=style, lw=1, label=f"{name} ({cm:.2f} cm)")
     ax.set(xscale="log", yscale="log", xlabel="training steps",
@@ -403,6 +412,19 @@ def curve(args: Args) -> None:
     print(f"wrote {save_figure(fig, args.plot)}")
     for name, cm in refs.items():
         print(f"{name}: {cm:.2f} cm on the evaluation set")
+
+
+def _stopped_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(steps, evaluation error) from a diagnostics file's evaluation rows."""
+    if not path.is_file():
+        raise UserError(f"--stopped {path}: no such file (write it with `runs diagnostics "
+                        "--runs RUN --csv FILE`)")
+    with open(path) as f:
+        rows = [r for r in csv.DictReader(f) if r.get("mean_error_cm")]
+    if not rows or "eval_timesteps" not in rows[0]:
+        raise UserError(f"--stopped {path}: no evaluation rows (eval_timesteps, mean_error_cm)")
+    return (np.array([float(r["eval_timesteps"]) for r in rows]),
+            np.array([float(r["mean_error_cm"]) for r in rows]))
 
 
 DIAGNOSTICS = {"total_timesteps": "time/total_timesteps", "eval_timesteps": "eval/timesteps",

@@ -23,8 +23,9 @@ MIN_PER_BIN = 5
 
 
 def colours_for(labels) -> dict[str, str]:
-    """One colour per label: the fixed COLOURS where known, else the next unused tab10 colour."""
-    free = iter(c for c in (f"C{i}" for i in range(3, 10)) if c not in COLOURS.values())
+    """One colour per label: the fixed COLOURS where known, else the next unused tab10 colour
+    (never C7, grey: the colour of the reference lines)."""
+    free = iter(c for c in (f"C{i}" for i in (3, 4, 5, 6, 8, 9)) if c not in COLOURS.values())
     return {lab: COLOURS[lab] if lab in COLOURS else next(free) for lab in dict.fromkeys(labels)}
 
 
