@@ -13,7 +13,7 @@ if [ "${1:-all}" = all ]; then
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
       v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m \
-      err_delayed v5_err_decay_wide v5_err_decay_wide_lr3e-4; do
+      err_delayed v5_err_decay_wide v5_err_decay_wide_lr3e-4 joint_5m curriculum_5m v9_5m; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -d sweeps/err_delayed_s3/runs ] && runs summarize --study err_delayed \
@@ -105,7 +105,7 @@ runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
   && runs compare --study err_delayed --against-study delayed_5m > results/err_delayed_vs_delayed_5m.md
 [ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
 for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \
-    v7 delayed_5m noisy_5m v5_err_decay_wide; do
+    v7 delayed_5m noisy_5m v5_err_decay_wide joint_5m curriculum_5m v9_5m; do
   [ -d "results/runs/$study" ] || continue
   runs report --study "$study" > "results/spread_$study.md"
   runs compare --study "$study" --against-study v5 > "results/${study}_vs_v5.md"
@@ -118,6 +118,9 @@ if [ -d results/runs/ikfree_long ]; then
   runs curve --studies ikfree_long ikfree "$H" --plot results/ikfree_curve.png \
     --stopped results/ikfree_const_lr_diagnostics.csv results/ikfree_err_lr1e-3_diagnostics.csv
 fi
+# the speed curriculum's question is time to quality: its curve beside v5's (questions.md 5)
+[ -d results/runs/curriculum_5m ] && runs curve --studies curriculum_5m v5 \
+  --plot results/curriculum_curve.png
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
     "v5_err_decay_smooth v5_err_decay" "v5_err_decay_wide v5_err_decay" \
