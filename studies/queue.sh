@@ -62,6 +62,11 @@ elif [ "$1" = next ]; then
   # The preset `v5_err_decay_wide_slow` names the same config.
   sweep --name v5_err_decay_wide_lr3e-4 --presets v5_err_decay_wide --seeds 1 2 3 \
     --train-args="--learning-rate 3e-4"
+  # Queued 2026-11-25 (not yet run), the climb's next steps on the headline's configuration:
+  # a reward that pays for sub-centimetre precision, and 3x the steps under the same decay
+  # (with the decay the evaluation error still fell in the last million of 5M).
+  sweep --name v5_err_decay_track --presets v5_err_decay_track --seeds 1 2 3
+  sweep --name v5_err_decay_15m --presets v5_err_decay --seeds 1 2 3 --timesteps 15000000
 elif [ "$1" = side5m ]; then
   # The 1M side studies at the presets' budget, 5 seeds each (not yet run: ~15 runs of ~10
   # minutes on 2 cores); each compares with v5's 5 seeds (`runs.py compare --against-study v5`).
