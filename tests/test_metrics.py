@@ -182,7 +182,7 @@ def test_cli_table_breakdown_and_plot(root):
     assert "n=4 seeds; failures charged: Alpha 0, Beta 0; duration=1.00s" in p.stdout
     assert "Alpha" in p.stdout and "Beta" in p.stdout
     assert "shape circle" in p.stdout and "shape fig8" in p.stdout and "per seed" in p.stdout
-    assert "warning: seeds only in learned, not compared: [9]" in p.stdout
+    assert "warning: 1 seed only in learned, not compared: 9" in p.stdout
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(png.parent.glob("*.tmp.png"))
 

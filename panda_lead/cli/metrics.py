@@ -38,6 +38,7 @@ from ..metrics.pairing import (
     seed_ranges,
     seed_set_title,
     set_labels,
+    unpaired_warning,
 )
 from ..metrics.stats import BY_KEY, MIN_PAIRS_FOR_CLAIM, Row, claim, fmt_ci, fmt_num
 from ..metrics.stats import shown as shown_ci
@@ -267,7 +268,7 @@ def run_compare(args: Args, console: Console) -> None:
     # On stdout, not stderr, so a saved report also says which seeds it left out.
     for prefix, seeds in ((args.prefix_a, cmp.only_a), (args.prefix_b, cmp.only_b)):
         if seeds:
-            _say(console, f"warning: seeds only in {prefix}, not compared: {seeds}")
+            _say(console, unpaired_warning(prefix, seeds))
     for line in cmp.pairing.warnings(unpaired=False):
         _say(console, line)
     _say(console, f"A = {args.label_a} ({args.root}/{args.prefix_a}), "

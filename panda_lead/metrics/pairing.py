@@ -79,6 +79,13 @@ def seed_ranges(seeds) -> str:
     return ", ".join(parts)
 
 
+def unpaired_warning(name: str, seeds) -> str:
+    """One line naming the seeds of one set that have no partner, as ranges (a 200-seed oracle
+    set against 1,000-seed sets leaves 800 unpaired)."""
+    return (f"warning: {len(seeds)} seed{'s' * (len(seeds) != 1)} only in {name}, not "
+            f"compared: {seed_ranges(seeds)}")
+
+
 def check_one_controller(rs: dict[int, Rollout], name: str) -> None:
     """UserError if a set mixes identities (rollout.identity: controller, model hash,
     controller settings, env): the same rule the rollout writer applies."""
@@ -188,7 +195,7 @@ class Pairing:
     def warnings(self, unpaired: bool = True) -> list[str]:
         """One line per kind of irregularity, naming the seeds: unpaired seeds, and failures
         charged in each set (counted, never left out)."""
-        lines = [f"warning: seeds only in {name}, not compared: {seeds}"
+        lines = [unpaired_warning(name, seeds)
                  for name, seeds in self.unpaired.items() if seeds and unpaired]
         for name, bad in self.charged.items():
             if bad:
