@@ -58,7 +58,7 @@ elif [ "$1" = next ]; then
   # the climb: a larger network on the headline's configuration (docs/questions.md 6)
   sweep --name v5_err_decay_wide --presets v5_err_decay_wide --seeds 1 2 3
   # ... with its step matched: at 1e-3 its KL per update was 2-6x the headline's (questions.md 6).
-  # One seed (3) ran on 2026-11-25 as a pilot; rerunning this line continues with seeds 1 and 2.
+  # Seed 3 ran first as a pilot, then 2 and 1 (2026-11-25); its seed 1 is the headline.
   # The preset `v5_err_decay_wide_slow` names the same config.
   sweep --name v5_err_decay_wide_lr3e-4 --presets v5_err_decay_wide --seeds 1 2 3 \
     --train-args="--learning-rate 3e-4"

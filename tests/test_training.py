@@ -68,6 +68,17 @@ def test_a_preset_names_exactly_what_a_flag_trained_study_ran(study, preset):
         assert trained == named, f.name
 
 
+def test_a_card_names_what_the_runs_flags_changed_from_its_preset():
+    from panda_lead.training.archive import _changed_from_preset
+
+    as_named = PRESETS["v5_err_decay_wide"].to_dict()
+    assert _changed_from_preset({**as_named, "seed": 3, "timesteps": 1000}) == ""
+    flagged = parse_args(["--preset", "v5_err_decay_wide", "--learning-rate", "3e-4",
+                          "--env.obs-delay", "2"]).to_dict()
+    assert _changed_from_preset(flagged) == (" with learning_rate 0.0003 (the preset: 0.001), "
+                                             "env.obs_delay 2 (the preset: 0)")
+
+
 def test_preset_help_shows_the_presets_values_and_no_internal_flags(tmp_path):
     out = run(ROOT / "train.py", "--preset", "v4", "--help", cwd=tmp_path)
     assert out.returncode == 0, out.stderr

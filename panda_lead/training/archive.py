@@ -91,6 +91,29 @@ def card_number(policy, env_config: dict) -> float:
     return float(100 * np.mean(errors))
 
 
+def _changed_from_preset(train: dict) -> str:
+    """' with learning_rate 0.0003 (the preset: 0.001)': what the run's flags changed from its
+    preset, so a card does not pass a flag-trained model off as the preset's. Budget, seed
+    and evaluation settings are the run's own and not listed."""
+    from .config import TrainConfig
+    from .presets import PRESETS
+
+    base = PRESETS.get(train.get("preset"))
+    if base is None:
+        return ""
+    try:  # through the config class, so an older layout of the same values compares equal
+        ran = TrainConfig.from_dict(train).to_dict()
+    except (TypeError, ValueError, UserError):
+        return ""
+    named, own = base.to_dict(), ("seed", "preset", "timesteps", "eval_freq", "checkpoint_freq")
+    env = [f"{k} {v} (the preset: {named['env'].get(k)})" for k, v in sorted(ran["env"].items())
+           if named["env"].get(k) != v]
+    rest = [f"{k} {v} (the preset: {named.get(k)})" for k, v in sorted(ran.items())
+            if k not in (*own, "env") and named.get(k) != v]
+    changed = rest + [f"env.{c}" for c in env]
+    return f" with {', '.join(changed)}" if changed else ""
+
+
 CARD_SNIPPET = '''\
 import gymnasium as gym
 import numpy as np
@@ -136,7 +159,7 @@ def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
         f"| {s} | {test[f'{s}/mean_error_cm']:.2f} | {test[f'{s}/in_band_pct']:.1f} |"
         for s in SHAPES if f"{s}/mean_error_cm" in test)
     preset = train.get("preset")
-    from_preset = f" from preset `{preset}`" if preset else ""
+    from_preset = f" from preset `{preset}`{_changed_from_preset(train)}" if preset else ""
     steps, budget = side.get("timesteps", 0), train.get("timesteps")
     # A run's best model can come from any evaluation of it: its own step count is not the
     # run's budget (ikfree_long's best came at 5.0M of 30M steps).
