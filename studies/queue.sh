@@ -41,6 +41,9 @@ if [ "${1:-main}" = main ]; then
   sweep --name ikfree_long --presets ikfree_err_decay --seeds 1 --timesteps 30000000 \
     --eval-freq 250000
   sweep --name ikfree_5m --presets ikfree_err_decay --seeds 1 2 3  # its spread at the presets' budget
+  # ... and to 50M steps, the reference work's estimate, its rate decayed over all 50M (2026-11-25)
+  sweep --name ikfree_50m --presets ikfree_err_decay --seeds 1 --timesteps 50000000 \
+    --eval-freq 250000
 elif [ "$1" = next ]; then
   # Queued on 2026-11-24: the noise study's policy at the presets' budget, the IK-free
   # policy at 1e-3 held together by SB3's KL guard instead of a smaller rate (not yet run),

@@ -16,7 +16,8 @@ if [ "${1:-all}" = all ]; then
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
   for study in v5 v5_joint climb v5_decay v5_err v5_err_decay v5_err_avg_decay \
       v5_err_decay_smooth v5_track v5_prev v7 delayed_5m noisy_5m ikfree ikfree_long ikfree_5m \
-      err_delayed v5_err_decay_wide v5_err_decay_wide_lr3e-4 joint_5m curriculum_5m v9_5m; do
+      err_delayed v5_err_decay_wide v5_err_decay_wide_lr3e-4 joint_5m curriculum_5m v9_5m \
+      ikfree_50m; do
     [ -d "sweeps/$study/runs" ] && runs summarize --study "$study" --runs sweeps/"$study"/runs/*/
   done
   [ -d sweeps/err_delayed_s3/runs ] && runs summarize --study err_delayed \
@@ -29,8 +30,10 @@ if [ "${1:-all}" = all ]; then
   [ -f "archive/$H.zip" ] || runs choose --study "$H" --archive-as "$H" --runs "sweeps/$H/runs"
   S=v5_err_decay_smooth  # the smooth alternative (docs/questions.md 6, the jerk)
   [ -f "archive/$S.zip" ] || runs choose --study "$S" --archive-as "$S" --runs "sweeps/$S/runs"
-  [ -f results/ikfree_long_diagnostics.csv ] || runs diagnostics --runs sweeps/ikfree_long/runs/*/ \
-    --csv results/ikfree_long_diagnostics.csv  # PPO's health per window (docs/questions.md 7)
+  for study in ikfree_long ikfree_50m; do  # PPO's health per window (docs/questions.md 7)
+    [ -f "results/${study}_diagnostics.csv" ] || [ ! -d "sweeps/$study/runs" ] || runs diagnostics \
+      --runs sweeps/"$study"/runs/*/ --csv "results/${study}_diagnostics.csv"
+  done
   for seed in 1 2 3; do  # PPO's health with the wider network against the headline's (questions.md 6)
     for study in v5_err_decay v5_err_decay_wide v5_err_decay_wide_lr3e-4; do
       f="results/${study}_s${seed}_diagnostics.csv"
@@ -127,7 +130,11 @@ if [ -d results/runs/ikfree_long ]; then
   runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
   [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md \
     && runs compare --study ikfree_5m --against-study "$H" > "results/ikfree_5m_vs_$H.md"
-  runs curve --studies ikfree_long ikfree "$H" --plot results/ikfree_curve.png \
+  [ -d results/runs/ikfree_50m ] && runs compare --study ikfree_50m --against-study ikfree_long \
+    > results/ikfree_50m_vs_ikfree_long.md && runs compare --study ikfree_50m --against-study "$H" \
+    > "results/ikfree_50m_vs_$H.md"
+  long=ikfree_long; [ -d results/runs/ikfree_50m ] && long="ikfree_50m ikfree_long"
+  runs curve --studies $long ikfree "$H" --plot results/ikfree_curve.png \
     --stopped results/ikfree_const_lr_diagnostics.csv results/ikfree_err_lr1e-3_diagnostics.csv
 fi
 # the speed curriculum's question is time to quality: its curve beside v5's (questions.md 5)
