@@ -6,9 +6,12 @@ For each rollout, over the settled window (t >= 0.5 s, after the swing from the 
 - settled: the mean of |tip - target| (the settled error of docs/metrics.md);
 - bias: |mean of (tip - target)|, the part of the error that a constant offset of the lead
   for the whole trajectory would cancel (an integrator's job);
-- wobble: the mean of |e - e smoothed over 11 steps (0.11 s)|, the fast part of the error.
-Printed per shape and overall: the mean over rollouts, the median in brackets (cm), on the
-seeds every set holds. It reads rollout files only.
+- wobble: the mean of |e - e smoothed over 11 steps (0.11 s)|, the fast part of the error;
+- lead step, lead 2nd diff: the mean of |lead(t+1) - lead(t)| and of its second difference
+  (mm per control step), how much the lead itself moves: a chattering lead, one that flips
+  back and forth, has a second difference larger than its step.
+Printed per shape and overall: the mean over rollouts, the median in brackets (cm; the lead
+columns mm), on the seeds every set holds. It reads rollout files only.
 """
 
 from __future__ import annotations
@@ -45,6 +48,14 @@ def parts(r) -> tuple[float, float, float]:
             100 * float(np.linalg.norm((e - smooth)[inner], axis=1).mean()))
 
 
+def lead_steps(r) -> tuple[float, float]:
+    """(mean |first difference|, mean |second difference|) of the lead over the settled
+    window, in mm per control step."""
+    lead = r.lead[r.t >= SETTLE_S - 1e-9]
+    return (1000 * float(np.linalg.norm(np.diff(lead, axis=0), axis=1).mean()),
+            1000 * float(np.linalg.norm(np.diff(lead, 2, axis=0), axis=1).mean()))
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     from panda_lead.metrics.pairing import load_set
@@ -56,11 +67,12 @@ def main(args: Args) -> None:
     sets = {p: {k: s[k] for k in seeds} for p, s in loaded.items()}
     shapes = sorted({r.shape for r in sets[args.prefixes[0]].values()})
     print(f"settled window t >= {SETTLE_S} s; {len(seeds)} seeds; mean over rollouts [median], cm\n")
-    print("| shape | n | set | settled | bias | wobble |")
-    print("|---|---|---|---|---|---|")
+    print("| shape | n | set | settled | bias | wobble | lead step (mm) | lead 2nd diff (mm) |")
+    print("|---|---|---|---|---|---|---|---|")
     for shape in [*shapes, "all"]:
         for p, s in sets.items():
-            rows = np.array([parts(r) for r in s.values() if shape in ("all", r.shape)])
+            rows = np.array([(*parts(r), *lead_steps(r)) for r in s.values()
+                             if shape in ("all", r.shape)])
             cells = " | ".join(f"{m:.2f} [{md:.2f}]" for m, md in
                                zip(rows.mean(axis=0), np.median(rows, axis=0), strict=True))
             print(f"| {shape} | {len(rows)} | {p} | {cells} |")

@@ -71,6 +71,13 @@ def test_bias_py_splits_a_known_offset_from_a_known_wobble(monkeypatch):
     assert offset == pytest.approx(1.0, abs=1e-3)  # cm: the constant 1 cm offset
     assert fast == pytest.approx(0.2, rel=0.1)  # cm: the 2 mm step-to-step wobble
     assert settled == pytest.approx(np.hypot(1.0, 0.2), rel=1e-3)
+    # A lead that flips between +1 cm and -1 cm in y every step: a 20 mm step, a 40 mm second
+    # difference (a chatter); a lead that drifts steadily: a step, no second difference.
+    flip = np.stack([0 * t, 0.01 * (-1.0) ** np.arange(n), 0 * t], axis=1)
+    drift = np.stack([0.001 * np.arange(n), 0 * t, 0 * t], axis=1)
+    for lead, expected in ((flip, (20.0, 40.0)), (drift, (1.0, 0.0))):
+        r.lead = lead
+        assert bias.lead_steps(r) == pytest.approx(expected, abs=1e-9)
 
 
 def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes(
