@@ -73,9 +73,13 @@ if [ "${1:-all}" = all ]; then
     --plot results/headline.png
   # 5. The side studies under the evaluation harness (levels replace a model's own settings);
   #    the latency study's 5M policy (every seed of it at 1 and 3 steps) beside the 1M ones.
-  #    They evaluate P, the headline when they were made (the present one is not yet measured
-  #    under latency and noise: docs/questions.md 1-2).
+  #    They evaluate P, the headline when they were made; the present one alone, beside the
+  #    same baselines, is results/headline_robustness/ (docs/questions.md 1-2).
   P=v5_err_decay
+  for q in delay noise; do
+    uv run studies/robustness.py --question $q --force --out results/headline_robustness \
+      --models "archive/$H.zip" --seeds 0-499
+  done
   [ -f archive/delayed_5m.zip ] || runs choose --study delayed_5m --archive-as delayed_5m \
     --runs sweeps/delayed_5m/runs
   uv run studies/robustness.py --question delay --force --models archive/indep_v5.zip \
