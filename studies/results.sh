@@ -134,7 +134,8 @@ if [ -d results/runs/ikfree_long ]; then
   runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
   [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md \
     && runs compare --study ikfree_5m --against-study "$H" > "results/ikfree_5m_vs_$H.md"
-  [ -d results/runs/ikfree_50m ] && runs compare --study ikfree_50m --against-study ikfree_long \
+  [ -d results/runs/ikfree_50m ] && runs report --study ikfree_50m > results/spread_ikfree_50m.md \
+    && runs compare --study ikfree_50m --against-study ikfree_long \
     > results/ikfree_50m_vs_ikfree_long.md && runs compare --study ikfree_50m --against-study "$H" \
     > "results/ikfree_50m_vs_$H.md"
   long=ikfree_long; [ -d results/runs/ikfree_50m ] && long="ikfree_50m ikfree_long"
