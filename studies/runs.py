@@ -414,15 +414,23 @@ def curve(args: Args) -> None:
         print(f"{name}: {cm:.2f} cm on the evaluation set")
 
 
+def _read_diagnostics(path: Path) -> list[dict]:
+    """The rows of a diagnostics file (`diagnostics --csv`), its columns checked."""
+    if not path.is_file():
+        raise UserError(f"{path}: no such file (write it with `runs diagnostics --runs RUN "
+                        "--csv FILE`)")
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    if not rows or set(DIAGNOSTICS) - set(rows[0]):
+        raise UserError(f"{path}: not a diagnostics file (columns {', '.join(DIAGNOSTICS)})")
+    return rows
+
+
 def _stopped_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(steps, evaluation error) from a diagnostics file's evaluation rows."""
-    if not path.is_file():
-        raise UserError(f"--stopped {path}: no such file (write it with `runs diagnostics "
-                        "--runs RUN --csv FILE`)")
-    with open(path) as f:
-        rows = [r for r in csv.DictReader(f) if r.get("mean_error_cm")]
-    if not rows or "eval_timesteps" not in rows[0]:
-        raise UserError(f"--stopped {path}: no evaluation rows (eval_timesteps, mean_error_cm)")
+    rows = [r for r in _read_diagnostics(path) if r["mean_error_cm"]]
+    if not rows:
+        raise UserError(f"--stopped {path}: no evaluation rows")
     return (np.array([float(r["eval_timesteps"]) for r in rows]),
             np.array([float(r["mean_error_cm"]) for r in rows]))
 
@@ -458,12 +466,7 @@ def diagnostics(args: Args) -> None:
             out.writerows([r.get(c, "") for c in DIAGNOSTICS.values()] for r in rows
                           if r.get("eval/mean_error_cm") or id(r) in kept)
         print(f"wrote {args.csv}")
-    if not args.csv.is_file():
-        raise UserError(f"{args.csv}: no such file")
-    with open(args.csv) as f:
-        rows = list(csv.DictReader(f))
-    if not rows or set(DIAGNOSTICS) - set(rows[0]):
-        raise UserError(f"{args.csv}: not a diagnostics file (columns {', '.join(DIAGNOSTICS)})")
+    rows = _read_diagnostics(args.csv)
 
     def windowed(step_key: str, key: str) -> dict[int, float]:
         by: dict[int, list[float]] = {}

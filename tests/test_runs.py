@@ -99,13 +99,14 @@ def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes
 
 def test_a_stopped_runs_curve_is_read_from_its_diagnostics_evaluation_rows(runs, tmp_path):
     stopped = tmp_path / "came_apart_diagnostics.csv"
-    stopped.write_text("total_timesteps,eval_timesteps,mean_error_cm,std\n"
-                       "8192,,,0.3\n50000,50000,7.5,\n90112,,,0.2\n100000,100000,6.25,\n")
+    head = ",".join(runs.DIAGNOSTICS) + "\n"  # the columns `runs diagnostics --csv` writes
+    stopped.write_text(head + "8192,,,0.3,,,\n50000,50000,7.5,,,,\n90112,,,0.2,,,\n"
+                       "100000,100000,6.25,,,,\n")
     steps, error = runs._stopped_curve(stopped)
     assert steps.tolist() == [50_000, 100_000] and error.tolist() == [7.5, 6.25]
     # A file with no evaluation rows, or none at all, is one line before any work is done.
     updates_only = tmp_path / "updates_only.csv"
-    updates_only.write_text("total_timesteps,std\n8192,0.3\n")
+    updates_only.write_text(head + "8192,,,0.3,0.01,0.1,-90\n")
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / "seed_1.json").write_text(json.dumps(
         {"seed": 1, "train_config": {"eval_steps": 100}, "eval_curve": [[50_000, 9.0]]}))
