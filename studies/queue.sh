@@ -71,11 +71,17 @@ elif [ "$1" = next ]; then
   sweep --name v5_err_decay_track --presets v5_err_decay_track --seeds 1 2 3
   sweep --name v5_err_decay_15m --presets v5_err_decay --seeds 1 2 3 --timesteps 15000000
 elif [ "$1" = side5m ]; then
-  # The 1M side studies at the presets' budget, 5 seeds each (not yet run: ~15 runs of ~10
-  # minutes on 2 cores); each compares with v5's 5 seeds (`runs.py compare --against-study v5`).
-  sweep --name curriculum_5m --presets v5 --seeds 1 2 3 4 5 --train-args="--curriculum-steps 500000"
-  sweep --name joint_5m --presets joint --seeds 1 2 3 4 5
-  sweep --name v9_5m --presets v9 --seeds 1 2 3 4 5
+  # The 1M side studies at the presets' budget, 5 seeds each (~15 runs of ~10 minutes on 2
+  # cores, 2026-11-25); each compares with v5's 5 seeds (`runs.py compare --against-study v5`).
+  # Seeds 1-3 of every study first, then seeds 4-5 in folders of their own (a grid's seeds
+  # cannot change), summarized into the same study by studies/results.sh.
+  C="--curriculum-steps 500000"
+  sweep --name joint_5m --presets joint --seeds 1 2 3
+  sweep --name curriculum_5m --presets v5 --seeds 1 2 3 --train-args="$C"
+  sweep --name v9_5m --presets v9 --seeds 1 2 3
+  sweep --name joint_5m_s45 --presets joint --seeds 4 5
+  sweep --name curriculum_5m_s45 --presets v5 --seeds 4 5 --train-args="$C"
+  sweep --name v9_5m_s45 --presets v9 --seeds 4 5
 else
   sweep --name indep_v5 --presets v5 --seeds 1 2 3 4 5
   sweep --name noisy --presets noisy --seeds 1 2 3
