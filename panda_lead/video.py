@@ -215,6 +215,16 @@ def _shade(frame: np.ndarray, box: tuple[int, int, int, int]) -> None:
     frame[y0:y1, x0:x1] = frame[y0:y1, x0:x1] // 3
 
 
+def _fitting(draw, text: str, room: float, size: int):
+    """The largest bold font, from `size` down to 60% of it, whose `text` fits in `room` px: a
+    long model name in a side-by-side title must not run into the clock."""
+    for px in range(size, max(round(0.6 * size), 1) - 1, -1):
+        f = font(px, True)
+        if draw.textlength(text, font=f) <= room:
+            return f
+    return f
+
+
 def overlay(frame: np.ndarray, title: str, t: float, err_now: float, err_mean: float,
             note: str | None = None) -> np.ndarray:
     """Title top left, time top right, error along the bottom (cm), an optional red note."""
@@ -229,8 +239,11 @@ def overlay(frame: np.ndarray, title: str, t: float, err_now: float, err_mean: f
     img = Image.fromarray(frame)
     draw = ImageDraw.Draw(img)
     pad = round(8 * s)
-    draw.text((pad, pad), title, font=big, fill=(255, 255, 255))
-    draw.text((w - pad, pad), f"t {t:4.2f} s", font=big, fill=(255, 255, 255), anchor="ra")
+    clock = f"t {t:4.2f} s"
+    room = w - 4 * pad - draw.textlength(clock, font=big)
+    draw.text((pad, pad), title, font=_fitting(draw, title, room, round(24 * s)),
+              fill=(255, 255, 255))
+    draw.text((w - pad, pad), clock, font=big, fill=(255, 255, 255), anchor="ra")
     draw.text((pad, h - bar + pad), f"error {100 * err_now:5.1f} cm   mean {100 * err_mean:5.1f} cm",
               font=small, fill=(255, 255, 255))
     legend = [("target", TARGET_TRAIL), ("tip", TIP_TRAIL), ("lead", LEAD)]

@@ -104,6 +104,19 @@ def test_frames_show_the_arm_large_and_the_overlay(episode, tmp_path):
     assert f[:38].mean() < mid.mean() and f[:38].max() > 200
 
 
+def test_a_long_title_leaves_the_clock_alone():
+    """A side-by-side panel is 640 px wide; a model's long name once ran into the clock
+    ("policy lead (v5_err_decay_wide_lr3e-4)t 3.02 s"). The clock's corner of the top bar must
+    read the same with the long title as with none."""
+    blank = np.zeros((480, 640, 3), np.uint8)
+    alone = video.overlay(blank.copy(), "", 3.02, 0.01, 0.02)
+    titled = video.overlay(blank.copy(), "policy lead (v5_err_decay_wide_lr3e-4)", 3.02, 0.01, 0.02)
+    lit = np.flatnonzero(alone[:38].max(axis=(0, 2)) > 0)  # the clock's columns
+    corner = slice(lit.min() - 8, 640)
+    assert (titled[:38, corner] == alone[:38, corner]).all()
+    assert titled[:38, :lit.min() - 8].max() > 200  # ... and the title is still drawn
+
+
 def test_a_failed_panel_holds_its_last_frame(episode, tmp_path):
     r, model = episode
     import dataclasses
