@@ -148,7 +148,7 @@ if [ -d results/runs/ikfree_long ]; then
 fi
 # the speed curriculum's question is time to quality: its curve beside v5's (questions.md 5)
 [ -d results/runs/curriculum_5m ] && runs curve --studies curriculum_5m v5 \
-  --plot results/curriculum_curve.png
+  --plot results/curriculum_curve.png > results/curriculum_curve.md  # + its steps to quality
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
     "v5_err_decay_smooth v5_err_decay" "v5_err_decay_wide v5_err_decay" \

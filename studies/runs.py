@@ -78,6 +78,9 @@ class Args:
     in the figure."""
     csv: Path | None = None
     """diagnostics: the run's diagnostics file (written from --runs RUN when given, else read)."""
+    margin_cm: float = 1.5
+    """curve: the quality bar for the steps-to-quality table is the classical evaluation error
+    less this (studies/ttq.py's bar)."""
     window: int = 2_000_000
     """diagnostics: training steps per row of the table."""
 
@@ -412,6 +415,36 @@ def curve(args: Args) -> None:
     print(f"wrote {save_figure(fig, args.plot)}")
     for name, cm in refs.items():
         print(f"{name}: {cm:.2f} cm on the evaluation set")
+    print(time_to_quality(studies, refs["classical"], args.margin_cm))
+
+
+def first_below(curve: list[list[float]], threshold: float) -> float:
+    """Training steps at the first evaluation under `threshold` cm (inf if never)."""
+    return next((step for step, cm in curve if cm < threshold), float("inf"))
+
+
+def time_to_quality(studies: dict[str, list[dict]], classical_cm: float, margin_cm: float) -> str:
+    """Markdown: each seed's steps to the first evaluation under `threshold` (studies/ttq.py's
+    quality bar: the classical evaluation error less a margin), and for the first two studies a
+    one-sided Mann-Whitney test that the first gets there sooner (exact without ties, else
+    the normal approximation)."""
+    from scipy import stats
+
+    threshold = classical_cm - margin_cm
+    hits = {name: [first_below(s["eval_curve"], threshold) for s in runs]
+            for name, runs in studies.items()}
+    lines = [f"\nSteps to the first evaluation under {threshold:.2f} cm (the classical evaluation "
+             f"error {classical_cm:.2f} less {margin_cm:g}):\n",
+             "| study | per seed (1k steps) | median |", "|---|---|---|"]
+    for name, h in hits.items():
+        per = ", ".join("never" if x == float("inf") else f"{x / 1e3:.0f}" for x in h)
+        lines.append(f"| {name} | {per} | {np.median(h) / 1e3:.0f}k |")
+    if len(hits) >= 2:
+        (a, ha), (b, hb) = list(hits.items())[:2]
+        p = stats.mannwhitneyu(ha, hb, alternative="less").pvalue
+        lines.append(f"\n{a} sooner than {b}: one-sided Mann-Whitney p = {p:.3g} "
+                     f"(n = {len(ha)}, {len(hb)})")
+    return "\n".join(lines)
 
 
 def _read_diagnostics(path: Path) -> list[dict]:

@@ -90,11 +90,28 @@ def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes
     plot = tmp_path / "curve.png"
     runs.curve(runs.Args(command="curve", studies=["a", "b"], plot=plot))
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    refs = dict(line.split(": ") for line in capsys.readouterr().out.splitlines()[1:])
+    refs = dict(line.split(": ") for line in capsys.readouterr().out.splitlines()[1:3])
     classical, analytic = (float(refs[k].split()[0]) for k in ("classical", "analytic lead"))
     assert analytic < classical  # the analytic lead leads the target: it tracks better
     with pytest.raises(runs.UserError, match="different lengths"):  # not one evaluation set
         runs.curve(runs.Args(command="curve", studies=["a", "other"], plot=plot))
+
+
+def test_time_to_quality_counts_steps_to_the_first_evaluation_under_the_bar(runs):
+    """The bar is the classical evaluation error less the margin; a seed that never gets under
+    it is 'never' (and ranks last), and the first study is tested for getting there sooner."""
+    def seed(*errors):
+        return {"eval_curve": [[50_000 * (i + 1), e] for i, e in enumerate(errors)]}
+
+    fast = [seed(4.8, 4.0), seed(4.9, 3.0), seed(4.2, 3.9)]
+    slow = [seed(6.0, 5.5, 4.5), seed(6.0, 4.95, 4.4), seed(6.1, 5.2, 5.1)]
+    table = runs.time_to_quality({"fast": fast, "slow": slow}, classical_cm=6.41, margin_cm=1.5)
+    assert "under 4.91 cm" in table
+    assert "| fast | 50, 50, 50 | 50k |" in table  # 4.90 is under 4.91
+    assert "| slow | 150, 150, never | 150k |" in table
+    p = float(table.rsplit("p = ", 1)[1].split()[0])
+    assert p < 0.05  # every fast seed before every slow one: 1/20 by exact ranks, less with ties
+    assert runs.first_below([[50_000, 5.0]], 4.0) == float("inf")
 
 
 def test_a_stopped_runs_curve_is_read_from_its_diagnostics_evaluation_rows(runs, tmp_path):
