@@ -115,6 +115,11 @@ if [ "${1:-all}" = all ]; then
   [ -d sweeps/v7/runs ] && runs keep --study v7 --runs sweeps/v7/runs
   uv run studies/collision.py --force --models archive/v5_5m.zip archive/seeds/v7_s*.zip \
     --subset results/collision_seeds.txt --out results/collision_seeds_v7/collision.md
+  #    the joint residual at 5M (its chosen seed; seeds 4-5 ran in a folder of their own)
+  [ -f archive/joint_5m.zip ] || runs choose --study joint_5m --archive-as joint_5m \
+    --runs sweeps/joint_5m/runs sweeps/joint_5m_s45/runs
+  uv run studies/collision.py --force --models archive/v5_5m.zip archive/joint_5m.zip \
+    --subset results/collision_seeds.txt --out results/collision_joint_5m.md
 fi
 # From committed files only: the spread tables and the paired study comparisons.
 for study in v5 v5_joint climb v5_err_decay_wide_lr3e-4; do

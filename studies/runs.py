@@ -54,7 +54,7 @@ class Args:
     """What to do (see above)."""
     runs: list[Path] = field(default_factory=list)
     """summarize: run folders (each with best_model.zip, config.json, tb/progress.csv);
-    choose --archive-as: the folder holding the study's run folders; keep: the folders."""
+    choose --archive-as and keep: the folders holding the study's run folders."""
     study: str = "v5"
     """The study's name: its summaries live in results/runs/<study>/."""
     against: str = "analytic"
@@ -306,12 +306,14 @@ def choose(args: Args) -> None:
     if args.archive_as:
         from panda_lead.training.archive import archive_model
 
-        if len(args.runs) != 1:
-            raise UserError("--archive-as needs --runs FOLDER, the folder holding the run folders")
-        run_dir = Path(args.runs[0]) / chosen["run"]
-        if not run_dir.is_dir():
-            raise UserError(f"{run_dir} is not here: archive on the machine that trained it")
-        path = archive_model(run_dir, args.archive_as, force=args.force)
+        if not args.runs:
+            raise UserError("--archive-as needs --runs FOLDER..., the folders holding the run "
+                            "folders")
+        found = [Path(d) / chosen["run"] for d in args.runs if (Path(d) / chosen["run"]).is_dir()]
+        if not found:
+            raise UserError(f"run {chosen['run']} is in none of {[str(d) for d in args.runs]}: "
+                            "archive on the machine that trained it")
+        path = archive_model(found[0], args.archive_as, force=args.force)
         print(f"archived {path}")
 
 

@@ -24,7 +24,7 @@ def runs(tmp_path, monkeypatch):
 def write_study(root, study, evals, test_err):
     (root / study).mkdir()
     for seed, e in evals.items():
-        summary = {"seed": seed, "run": f"r{seed}", "best": {"mean_error_cm": e},
+        summary = {"seed": seed, "run": f"r{seed}", "best": {"mean_error_cm": e, "timesteps": 1},
                    "best_model_sha256": "0" * 64, "timesteps": 1,
                    "test": {"mean_err": [test_err] * 4, "settled_err": [test_err / 2] * 4,
                             "jerk_rms": [1.0] * 4}}
@@ -95,6 +95,19 @@ def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes
     assert analytic < classical  # the analytic lead leads the target: it tracks better
     with pytest.raises(runs.UserError, match="different lengths"):  # not one evaluation set
         runs.curve(runs.Args(command="curve", studies=["a", "other"], plot=plot))
+
+
+def test_choose_looks_for_the_chosen_run_in_every_folder_given(runs, tmp_path):
+    """A study whose seeds ran in two sweep folders (seeds 4-5 of the side studies): the chosen
+    run is looked for in each; in none of them is one line naming them, nothing archived."""
+    write_study(tmp_path, "s", {1: 2.5, 4: 2.2}, 2.0)  # seed 4 (run r4) is chosen
+    a, b = tmp_path / "a", tmp_path / "b"
+    (a / "r1").mkdir(parents=True)
+    b.mkdir()
+    with pytest.raises(runs.UserError, match=r"run r4 is in none of .*'.*a', '.*b'"):
+        runs.choose(runs.Args(command="choose", study="s", archive_as="x", runs=[a, b]))
+    with pytest.raises(runs.UserError, match="needs --runs"):
+        runs.choose(runs.Args(command="choose", study="s", archive_as="x"))
 
 
 def test_time_to_quality_counts_steps_to_the_first_evaluation_under_the_bar(runs):
