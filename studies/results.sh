@@ -22,10 +22,12 @@ if [ "${1:-all}" = all ]; then
   done
   [ -d sweeps/err_delayed_s3/runs ] && runs summarize --study err_delayed \
     --runs sweeps/err_delayed_s3/runs/*/  # its third seed, a study folder of its own
-  for study in joint_5m curriculum_5m v9_5m; do  # their seeds 4-5, study folders of their own
+  for study in joint_5m curriculum_5m v9_5m v5_err_decay_wide_lr3e-4 v5_err_decay; do
+    # their seeds 4-5, study folders of their own (queue.sh side5m and headline5)
     [ -d "sweeps/${study}_s45/runs" ] && runs summarize --study "$study" \
       --runs sweeps/"$study"_s45/runs/*/
   done
+  [ -d sweeps/v9_5m_s4/runs ] && runs summarize --study v9_5m --runs sweeps/v9_5m_s4/runs/*/
   [ -f results/runs/baselines.json ] || runs baselines
   # 2. The archived models: v5's chosen run (v5_5m) and the headline, the climb's best study
   #    (the lowest evaluation-set error of all, docs/questions.md 6), each its study's chosen
