@@ -104,6 +104,6 @@ elif [ "$1" = side ]; then  # the first side studies, at 1M steps: TIMESTEPS=100
   sweep --name joint --presets joint --seeds 1 2 3
   sweep --name indep_v9 --presets v9 --seeds 1 2 3
 else
-  echo "queue.sh: unknown queue '$1' (main, next, side5m, headline5 or side)" >&2
+  echo "error: studies/queue.sh has no queue '$1' (main, next, side5m, headline5 or side)" >&2
   exit 2
 fi

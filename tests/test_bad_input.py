@@ -422,3 +422,13 @@ def test_a_grid_given_new_seeds_is_one_line_not_a_failed_trial(tmp_path, monkeyp
     assert exc.value.code == 2 and sorted(trained) == [1, 2]
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is a grid over seed [1, 2], not [1, 2, 3]" in err[0]
+
+
+def test_an_unknown_queue_is_one_line_and_trains_nothing(tmp_path):
+    """queue.sh's last branch used to be the 1M side studies, so a misspelt queue name
+    (`bash studies/queue.sh headline_5`) started eight 1M-step grids."""
+    result = subprocess.run(["bash", str(ROOT / "studies" / "queue.sh"), "headline_5"],
+                            capture_output=True, text=True, timeout=60, env=ENV)
+    assert result.stdout == ""
+    one_line(result, "no queue 'headline_5'", "headline5")
+    assert not (ROOT / "sweeps" / "headline_5").exists()
