@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import csv
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -414,7 +415,7 @@ def curve(args: Args) -> None:
     ax.minorticks_off()  # the log axis's own minor labels (2 x 10^0 ...) would overprint them
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
-    print(f"wrote {save_figure(fig, args.plot)}")
+    print(f"wrote {save_figure(fig, args.plot)}", file=sys.stderr)  # stdout is the table
     for name, cm in refs.items():
         print(f"{name}: {cm:.2f} cm on the evaluation set")
     print(time_to_quality(studies, refs["classical"], args.margin_cm))
@@ -440,9 +441,14 @@ def time_to_quality(studies: dict[str, list[dict]], classical_cm: float, margin_
              "| study | per seed (1k steps) | median |", "|---|---|---|"]
     for name, h in hits.items():
         per = ", ".join("never" if x == float("inf") else f"{x / 1e3:.0f}" for x in h)
-        lines.append(f"| {name} | {per} | {np.median(h) / 1e3:.0f}k |")
+        median = np.median(h)  # (the median of "never" is "never", not "infk")
+        median = "never" if median == float("inf") else f"{median / 1e3:.0f}k"
+        lines.append(f"| {name} | {per} | {median} |")
     if len(hits) >= 2:
         (a, ha), (b, hb) = list(hits.items())[:2]
+        if min(len(ha), len(hb)) < 2:  # (a rank test of one seed has nothing to rank)
+            lines.append(f"\n{a} against {b}: one seed each side is too few for a rank test")
+            return "\n".join(lines)
         p = stats.mannwhitneyu(ha, hb, alternative="less").pvalue
         lines.append(f"\n{a} sooner than {b}: one-sided Mann-Whitney p = {p:.3g} "
                      f"(n = {len(ha)}, {len(hb)})")

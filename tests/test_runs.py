@@ -90,7 +90,9 @@ def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes
     plot = tmp_path / "curve.png"
     runs.curve(runs.Args(command="curve", studies=["a", "b"], plot=plot))
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    refs = dict(line.split(": ") for line in capsys.readouterr().out.splitlines()[1:3])
+    out, err = capsys.readouterr()
+    assert err.strip() == f"wrote {plot}"  # stdout is the table (results.sh redirects it)
+    refs = dict(line.split(": ") for line in out.splitlines()[0:2])
     classical, analytic = (float(refs[k].split()[0]) for k in ("classical", "analytic lead"))
     assert analytic < classical  # the analytic lead leads the target: it tracks better
     with pytest.raises(runs.UserError, match="different lengths"):  # not one evaluation set
@@ -125,6 +127,9 @@ def test_time_to_quality_counts_steps_to_the_first_evaluation_under_the_bar(runs
     p = float(table.rsplit("p = ", 1)[1].split()[0])
     assert p < 0.05  # every fast seed before every slow one: 1/20 by exact ranks, less with ties
     assert runs.first_below([[50_000, 5.0]], 4.0) == float("inf")
+    lone = runs.time_to_quality({"long": [seed(6.0)], "short": [seed(4.0)]}, 6.41, 1.5)
+    assert "| long | never | never |" in lone and "p = " not in lone
+    assert "one seed each side is too few" in lone
 
 
 def test_a_stopped_runs_curve_is_read_from_its_diagnostics_evaluation_rows(runs, tmp_path):
