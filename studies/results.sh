@@ -7,10 +7,15 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl}
 runs() { uv run studies/runs.py "$@"; }
-# The headline study and its archived model's name: the first study of results/rank.md (the
-# lowest mean best evaluation-set error over >= 3 seeds), `v5_err_decay_wide_lr3e-4` since
-# 2026-11-25 (before it, `v5_err_decay`, whose tables stay as the previous headline's).
-H=${HEADLINE:-v5_err_decay_wide_lr3e-4}
+# The headline: the first study of results/rank.md (the lowest mean best evaluation-set error
+# over >= 3 seeds, HS) and its chosen run, archived under the run's name (H). At 5 seeds each
+# (2026-11-25, queue.sh headline5): `v5_err_decay`, its seed 4, archive/v5_err_decay_s4. The
+# previous headline (P), first at 3 seeds: `v5_err_decay_wide_lr3e-4`, its seed 1; before it
+# `v5_err_decay` at 3 seeds, its seed 2 (archive/v5_err_decay): the tables that measured those
+# models keep their names.
+HS=${HEADLINE_STUDY:-v5_err_decay}
+H=${HEADLINE:-v5_err_decay_s4}
+P=v5_err_decay_wide_lr3e-4
 if [ "${1:-all}" = all ]; then
   # 1. One committed summary per training run (config, curve, best model's hash, its metrics
   #    on the 1,000 test seeds), then the baselines at 100 Hz and with the IK at 500 Hz.
@@ -33,7 +38,9 @@ if [ "${1:-all}" = all ]; then
   #    (the lowest evaluation-set error of all, docs/questions.md 6), each its study's chosen
   #    run (the lowest evaluation-set error, ties to the lower seed).
   [ -f archive/v5_5m.zip ] || runs choose --study v5 --archive-as v5_5m --runs sweeps/v5/runs
-  [ -f "archive/$H.zip" ] || runs choose --study "$H" --archive-as "$H" --runs "sweeps/$H/runs"
+  [ -f "archive/$H.zip" ] || runs choose --study "$HS" --archive-as "$H" \
+    --runs "sweeps/$HS/runs" "sweeps/${HS}_s45/runs"
+  [ -f "archive/$P.zip" ] || runs choose --study "$P" --archive-as "$P" --runs "sweeps/$P/runs"
   S=v5_err_decay_smooth  # the smooth alternative (docs/questions.md 6, the jerk)
   [ -f "archive/$S.zip" ] || runs choose --study "$S" --archive-as "$S" --runs "sweeps/$S/runs"
   for study in ikfree_long ikfree_50m; do  # PPO's health per window (docs/questions.md 7)
@@ -53,13 +60,13 @@ if [ "${1:-all}" = all ]; then
   #    headline's lead) on the first 200.
   [ -d rollouts/classical ] || uv run ikpd.py --seeds 0-999 --prefix classical
   [ -d rollouts/analytic ] || uv run ikpd.py --seeds 0-999 --prefix analytic --controller analytic
-  for m in "$H" v5_err_decay v5_5m indep_v5 ikfree_long; do
+  for m in "$H" "$P" v5_err_decay v5_5m indep_v5 ikfree_long; do
     [ -d "rollouts/$m" ] || uv run eval.py --seeds 0-999 --prefix "$m" --model "archive/$m.zip"
   done
   [ -d rollouts/ilc ] || uv run ikpd.py --controller ilc --seeds 0-199 --prefix ilc \
     --model "archive/$H.zip"  # (a new headline: move the old rollouts/ilc aside first)
   # 4. The paired tables and the headline figure.
-  for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 $H" \
+  for pair in "classical analytic" "classical $H" "analytic $H" "v5_5m $H" "indep_v5 $H" "$P $H" \
       "indep_v5 v5_5m" "$H ikfree_long" "v5_5m ikfree_long" "analytic ikfree_long" \
       "classical ikfree_long"; do
     set -- $pair
@@ -67,8 +74,9 @@ if [ "${1:-all}" = all ]; then
       | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > "results/$2_vs_$1.md"
   done
   #    the headline's model against the previous headline's (results/<study>_vs_<study>.md is
-  #    the two studies' comparison over their seeds, below)
-  uv run metrics.py --prefix-a v5_err_decay --prefix-b "$H" --breakdown --markdown \
+  #    the two studies' comparison over their seeds, below); the previous headline's own tables
+  #    (results/$P_vs_*.md, its oracle) were made with it as H
+  uv run metrics.py --prefix-a "$P" --prefix-b "$H" --breakdown --markdown \
     | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > results/headline_vs_previous_headline.md
   uv run metrics.py --prefix-a analytic --prefix-b "$H" --oracle ilc --markdown \
     > "results/${H}_vs_analytic_with_oracle.md"
@@ -79,17 +87,20 @@ if [ "${1:-all}" = all ]; then
     --plot results/headline.png
   # 5. The side studies under the evaluation harness (levels replace a model's own settings);
   #    the latency study's 5M policy (every seed of it at 1 and 3 steps) beside the 1M ones.
-  #    They evaluate P, the headline when they were made; the present one alone, beside the
-  #    same baselines, is results/headline_robustness/ (docs/questions.md 1-2).
-  P=v5_err_decay
+  #    They evaluate R, the headline when they were made; the later headlines alone, beside
+  #    the same baselines: H in results/robustness_$H/, P in results/headline_robustness/ (the
+  #    folder it was made in, as its headline) (docs/questions.md 1-2).
+  R=v5_err_decay
   for q in delay noise; do
-    uv run studies/robustness.py --question $q --force --out results/headline_robustness \
+    uv run studies/robustness.py --question $q --force --out "results/robustness_$H" \
       --models "archive/$H.zip" --seeds 0-499
+    uv run studies/robustness.py --question $q --force --out results/headline_robustness \
+      --models "archive/$P.zip" --seeds 0-499
   done
   [ -f archive/delayed_5m.zip ] || runs choose --study delayed_5m --archive-as delayed_5m \
     --runs sweeps/delayed_5m/runs
   uv run studies/robustness.py --question delay --force --models archive/indep_v5.zip \
-    archive/delayed.zip archive/v5_5m.zip archive/delayed_5m.zip "archive/$P.zip" --seeds 0-499
+    archive/delayed.zip archive/v5_5m.zip archive/delayed_5m.zip "archive/$R.zip" --seeds 0-499
   #    every seed's model is committed (archive/seeds/, `runs keep`), so these two re-run from git
   for study in delayed_5m err_delayed; do
     [ -d "sweeps/$study/runs" ] && runs keep --study "$study" --runs sweeps/"$study"*/runs
@@ -98,12 +109,12 @@ if [ "${1:-all}" = all ]; then
     --models archive/seeds/delayed_5m_s*.zip --seeds 0-499
   #    the headline's configuration trained with delay (3 seeds), beside delayed_5m's chosen seed
   uv run studies/robustness.py --question delay --force --out results/delay_err \
-    --models archive/delayed_5m.zip "archive/$P.zip" archive/seeds/err_delayed_s*.zip --seeds 0-499
+    --models archive/delayed_5m.zip "archive/$R.zip" archive/seeds/err_delayed_s*.zip --seeds 0-499
   [ -f archive/noisy_5m.zip ] || runs choose --study noisy_5m --archive-as noisy_5m \
     --runs sweeps/noisy_5m/runs
   [ -d sweeps/noisy_5m/runs ] && runs keep --study noisy_5m --runs sweeps/noisy_5m/runs
   uv run studies/robustness.py --question noise --force --models archive/indep_v5.zip \
-    archive/noisy.zip archive/v5_5m.zip archive/noisy_5m.zip "archive/$P.zip" \
+    archive/noisy.zip archive/v5_5m.zip archive/noisy_5m.zip "archive/$R.zip" \
     "archive/$S.zip" --seeds 0-499
   uv run studies/robustness.py --question noise --levels 1 2 --out results/noise_seeds --force \
     --models archive/seeds/noisy_5m_s*.zip --seeds 0-499
@@ -128,7 +139,7 @@ for study in v5 v5_joint climb v5_err_decay_wide_lr3e-4; do
   [ -d "results/runs/$study" ] && runs report --study "$study" > "results/spread_$study.md"
 done
 runs rank > results/rank.md  # the headline rule, applied to every study (selection data only)
-runs rates --study "$H" > results/rates_500hz.md
+runs rates --study "$HS" > results/rates_500hz.md
 runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
 [ -d results/runs/v7 ] && runs compare --study v7 --against-study v5_joint > results/v7_vs_v5_joint.md
 [ -d results/runs/err_delayed ] && runs report --study err_delayed > results/spread_err_delayed.md \
@@ -144,13 +155,13 @@ done
 if [ -d results/runs/ikfree_long ]; then
   runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
   [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md \
-    && runs compare --study ikfree_5m --against-study "$H" > "results/ikfree_5m_vs_$H.md"
+    && runs compare --study ikfree_5m --against-study "$HS" > "results/ikfree_5m_vs_$HS.md"
   [ -d results/runs/ikfree_50m ] && runs report --study ikfree_50m > results/spread_ikfree_50m.md \
     && runs compare --study ikfree_50m --against-study ikfree_long \
-    > results/ikfree_50m_vs_ikfree_long.md && runs compare --study ikfree_50m --against-study "$H" \
-    > "results/ikfree_50m_vs_$H.md"
+    > results/ikfree_50m_vs_ikfree_long.md && runs compare --study ikfree_50m --against-study "$HS" \
+    > "results/ikfree_50m_vs_$HS.md"
   long=ikfree_long; [ -d results/runs/ikfree_50m ] && long="ikfree_50m ikfree_long"
-  runs curve --studies $long ikfree "$H" --plot results/ikfree_curve.png \
+  runs curve --studies $long ikfree "$HS" --plot results/ikfree_curve.png \
     --stopped results/ikfree_const_lr_diagnostics.csv results/ikfree_err_lr1e-3_diagnostics.csv
 fi
 # the speed curriculum's question is time to quality: its curve beside v5's (questions.md 5)
