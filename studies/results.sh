@@ -154,12 +154,15 @@ done
 # the IK-free policy: the long run against ikfree's 5M, and its curve beside the lead's (docs/questions.md 7)
 if [ -d results/runs/ikfree_long ]; then
   runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
-  [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md \
-    && runs compare --study ikfree_5m --against-study "$HS" > "results/ikfree_5m_vs_$HS.md"
+  [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md
   [ -d results/runs/ikfree_50m ] && runs report --study ikfree_50m > results/spread_ikfree_50m.md \
-    && runs compare --study ikfree_50m --against-study ikfree_long \
-    > results/ikfree_50m_vs_ikfree_long.md && runs compare --study ikfree_50m --against-study "$HS" \
-    > "results/ikfree_50m_vs_$HS.md"
+    && runs compare --study ikfree_50m --against-study ikfree_long > results/ikfree_50m_vs_ikfree_long.md
+  for lead in "$HS" "$P"; do  # against the headline's study and the previous headline's
+    for study in ikfree_5m ikfree_50m; do
+      [ -d "results/runs/$study" ] && runs compare --study "$study" --against-study "$lead" \
+        > "results/${study}_vs_$lead.md"
+    done
+  done
   long=ikfree_long; [ -d results/runs/ikfree_50m ] && long="ikfree_50m ikfree_long"
   runs curve --studies $long ikfree "$HS" --plot results/ikfree_curve.png \
     --stopped results/ikfree_const_lr_diagnostics.csv results/ikfree_err_lr1e-3_diagnostics.csv
