@@ -74,3 +74,26 @@ def test_a_card_says_when_its_model_was_selected_and_what_it_outputs(tmp_path):
     card = write_card(tmp_path / "ikfree_long.zip", last, seed0=1.0).read_text()
     assert f"Trained {side['timesteps']:,} steps from preset `ikfree_err_decay`" in card
     assert "Selected at" not in card
+
+
+def test_a_card_is_numbered_on_the_pinned_matrix_path_from_any_process(monkeypatch):
+    """A card written in a process whose torch runs on another matrix path (a training run on
+    an AVX-512 machine: archive/ikfree's seed 0 moves from 5.408674 to 5.092068 cm there) is
+    numbered in a child process pinned to SSE4.2, and gets the number its snippet prints."""
+    from panda_lead.training import archive
+
+    zip_path = ROOT / "archive" / "ikfree.zip"  # a chaotic closed loop: the paths differ by mm
+    here = archive.pinned_card_number(zip_path)  # this process is pinned (conftest)
+    children = []
+    real_run = archive.subprocess.run
+
+    def spy(cmd, **kwargs):
+        children.append(kwargs["env"].get("MKL_ENABLE_INSTRUCTIONS"))
+        return real_run(cmd, **kwargs)
+
+    monkeypatch.setattr(archive.subprocess, "run", spy)
+    monkeypatch.delenv("MKL_ENABLE_INSTRUCTIONS")
+    child = archive.pinned_card_number(zip_path)
+    assert children == ["SSE4_2"] and child == here
+    promised = re.search(r"# card: ([0-9.]+) cm", (ROOT / "archive" / "ikfree.md").read_text())
+    assert f"{child:.6f}" == promised.group(1) == "5.408674"

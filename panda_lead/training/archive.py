@@ -10,6 +10,9 @@ its zip (the zips and their sidecars untouched), e.g. after the card's template 
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 from ..controllers import make_policy
@@ -57,7 +60,7 @@ def archive_model(run_dir: Path, name: str, force: bool = False, caveats: tuple[
     policy, env_config, side = load_policy(src)
     test = evaluate(make_policy(policy), env_config, 500,
                     episodes=[(s, None) for s in QUICK_TEST_SEEDS])
-    seed0 = card_number(policy, env_config)
+    seed0 = pinned_card_number(src, policy, env_config)
     dst = archive_path(name)
     with archive_lock(dst):
         check_archive_free(name, force)
@@ -89,6 +92,35 @@ def card_number(policy, env_config: dict) -> float:
     finally:
         e.close()
     return float(100 * np.mean(errors))
+
+
+# torch's MKL picks its matrix kernels by CPU (AVX-512, AVX2 or SSE, by model and vendor), and
+# float32 sums come out in another order: a lead policy's seed-0 number moves in its sixth
+# digit, a chaotic closed loop's (the IK-free policies) by millimetres. A card promises the
+# number on one path that every x86 CPU has, SSE4.2, read by MKL when torch first calls it.
+PINNED_MATRIX_PATH = {"MKL_ENABLE_INSTRUCTIONS": "SSE4_2"}
+
+
+def pinned_card_number(zip_path: Path, policy=None, env_config: dict | None = None) -> float:
+    """card_number() of the zip with torch's matrix kernels on PINNED_MATRIX_PATH: in this
+    process when it already runs on it (``policy`` and ``env_config`` reused if given), else
+    in a fresh interpreter that does (a few seconds), so that the card's snippet prints the
+    same number on any x86 CPU run with the same setting."""
+    if all(os.environ.get(k) == v for k, v in PINNED_MATRIX_PATH.items()):
+        if policy is None:
+            policy, env_config, _ = load_policy(zip_path)
+        return card_number(policy, env_config)
+    code = ("import sys; from panda_lead.models import load_policy; "
+            "from panda_lead.training.archive import card_number; "
+            "policy, env_config, _ = load_policy(sys.argv[1]); "
+            "print(repr(card_number(policy, env_config)))")
+    out = subprocess.run([sys.executable, "-c", code, str(Path(zip_path).resolve())],
+                         env={**os.environ, **PINNED_MATRIX_PATH}, capture_output=True,
+                         text=True)
+    if out.returncode != 0:  # a bug in the code above, not bad input: keep its traceback
+        raise RuntimeError(f"the card's number for {zip_path} failed in a child process:\n"
+                           f"{out.stderr[-2000:]}")
+    return float(out.stdout.strip().splitlines()[-1])
 
 
 def _changed_from_preset(train: dict) -> str:
@@ -137,19 +169,20 @@ print(f"test seed 0: mean error {{100 * np.mean(errors):.6f}} cm")  # card: {see
 
 def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
     """archive/NAME.md: what the model is, its config, its test results, how to load it. The
-    card promises ``seed0``, by default the zip played as its snippet plays it (so the promise
-    is what the snippet prints, whatever way an older sidecar's number was computed)."""
+    card promises ``seed0``, by default the zip played as its snippet plays it, on the pinned
+    matrix path (so the promise is what the snippet prints, whatever way an older sidecar's
+    number was computed)."""
     from ..atomicio import atomic_write
 
     zip_path = Path(zip_path)
     if seed0 is None:
-        policy, env_config, _ = load_policy(zip_path)
-        seed0 = card_number(policy, env_config)
+        seed0 = pinned_card_number(zip_path)
     stored = side.get("test_seed0_mean_error_cm")
     older = "" if stored is None or f"{stored:.6f}" == f"{seed0:.6f}" else (
         f"\nThe sidecar's `test_seed0_mean_error_cm` ({stored:.6f} cm) was computed eval.py's way "
-        "(the float64\nnumpy actor through the batched task); the snippet's float32 `predict` "
-        "differs from it by ~1e-7\nin the action, which this policy amplifies.")
+        "(the float64\nnumpy actor through the batched task, with the matrix kernels of the CPU "
+        "that trained it); the\nsnippet's float32 `predict` differs from it by ~1e-7 in the "
+        "action, which this policy amplifies.")
     name = zip_path.stem
     train = side.get("train_config", {})
     test = side.get("test_metrics", {})
@@ -193,7 +226,9 @@ Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same 
 | all | {test.get('mean_error_cm', float('nan')):.2f} | {test.get('in_band_pct', float('nan')):.1f} |
 {shape_rows}
 
-Test seed 0 alone: {seed0:.6f} cm (the snippet below reproduces it).{older}
+Test seed 0 alone: {seed0:.6f} cm (the snippet below reproduces it on any x86 CPU with torch's
+matrix kernels pinned, `MKL_ENABLE_INSTRUCTIONS=SSE4_2`; other kernels can move its last
+digits, a chaotic closed loop's by millimetres).{older}
 Where this model has full results (1,000 test seeds, paired with the baselines): README,
 docs/results.md or docs/questions.md.
 
