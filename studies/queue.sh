@@ -43,6 +43,7 @@ if [ "${1:-main}" = main ]; then
   sweep --name ikfree_long --presets ikfree_err_decay --seeds 1 --timesteps 30000000 \
     --eval-freq 250000
   sweep --name ikfree_5m --presets ikfree_err_decay --seeds 1 2 3  # its spread at the presets' budget
+  sweep --name ikfree_5m_s45 --presets ikfree_err_decay --seeds 4 5  # to 5 seeds (2026-11-25)
   # ... and to 50M steps, the reference work's estimate, its rate decayed over all 50M (2026-11-25)
   sweep --name ikfree_50m --presets ikfree_err_decay --seeds 1 --timesteps 50000000 \
     --eval-freq 250000

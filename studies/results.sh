@@ -27,8 +27,8 @@ if [ "${1:-all}" = all ]; then
   done
   [ -d sweeps/err_delayed_s3/runs ] && runs summarize --study err_delayed \
     --runs sweeps/err_delayed_s3/runs/*/  # its third seed, a study folder of its own
-  for study in joint_5m curriculum_5m v9_5m v5_err_decay_wide_lr3e-4 v5_err_decay; do
-    # their seeds 4-5, study folders of their own (queue.sh side5m and headline5)
+  for study in joint_5m curriculum_5m v9_5m v5_err_decay_wide_lr3e-4 v5_err_decay ikfree_5m; do
+    # their seeds 4-5, study folders of their own (queue.sh side5m, headline5 and main)
     [ -d "sweeps/${study}_s45/runs" ] && runs summarize --study "$study" \
       --runs sweeps/"$study"_s45/runs/*/
   done

@@ -8,14 +8,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-# torch's MKL picks its matrix kernels by CPU (AVX-512, AVX2 or SSE, by model and vendor), and
-# float32 sums come out in another order. A lead policy's closed loop damps that below a card's
-# six digits; an IK-free policy's is chaotic and moves by millimetres (archive/ikfree's seed 0:
-# 5.408674 cm on the SSE4.2 path its card was written on, 5.092068 with AVX-512, 5.785697 with
-# AVX2). The tests pin that path, read by MKL when torch first calls it, so that they pass on
-# any x86 CPU (docs/results.md, Reproducibility).
-os.environ.setdefault("MKL_ENABLE_INSTRUCTIONS", "SSE4_2")
-
 # MuJoCo picks its GL platform once, when it is first imported; importing panda_lead chooses
 # EGL on a headless machine. Import it before any test module imports mujoco itself, so a
 # render test works whichever test files run before it (test_core imports mujoco first).

@@ -1,20 +1,23 @@
 """The archive's model cards: every card's snippet, run from a folder outside the repo, prints
-the number its card promises (one test seed per card, played in this process as the snippet
-plays it); a card is written with the snippet's number whatever its sidecar holds."""
+the number its card promises (one test seed per card, played as the snippet plays it, with
+torch's matrix kernels on the path the cards promise: training.archive.PINNED_MATRIX_PATH);
+a card is written with the snippet's number whatever its sidecar holds."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
+import os
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from panda_lead.models import load_policy, verify
-from panda_lead.training.archive import card_number, write_card
+from panda_lead.models import verify
+from panda_lead.training import archive
+from panda_lead.training.archive import PINNED_MATRIX_PATH, pinned_card_number, write_card
 
 ROOT = Path(__file__).resolve().parents[1]
 CARDS = sorted((ROOT / "archive").glob("*.md"))
@@ -25,17 +28,44 @@ def test_every_archived_model_has_a_card():
     assert zips and zips == {p.stem for p in CARDS}
 
 
+# Every card's snippet in one child process (torch's matrix path is chosen once per process,
+# and this one's is the CPU's own), each snippet's output or its error kept apart.
+_RUN_SNIPPETS = """
+import contextlib, io, json, re, sys, traceback
+from pathlib import Path
+printed = {}
+for card in map(Path, sys.argv[1:]):
+    snippet = re.search(r"```python\\n(.*?)```", card.read_text(), re.S).group(1)
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out):
+            exec(compile(snippet, f"{card.name} snippet", "exec"), {"__name__": "__main__"})
+    except Exception:
+        out.write(traceback.format_exc())
+    printed[card.stem] = out.getvalue()
+print(json.dumps(printed))
+"""
+
+
+@pytest.fixture(scope="module")
+def printed(tmp_path_factory) -> dict[str, str]:
+    """What each card's snippet printed, run from a folder with no ./archive (the snippet
+    finds the shipped one) on the pinned matrix path."""
+    outside = tmp_path_factory.mktemp("outside")
+    result = subprocess.run([sys.executable, "-c", _RUN_SNIPPETS, *map(str, CARDS)],
+                            cwd=outside, env={**os.environ, **PINNED_MATRIX_PATH},
+                            capture_output=True, text=True, timeout=1200)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
 @pytest.mark.parametrize("card", CARDS, ids=[p.stem for p in CARDS])
-def test_each_cards_snippet_prints_the_number_its_card_promises(card, tmp_path, monkeypatch):
+def test_each_cards_snippet_prints_the_number_its_card_promises(card, printed):
     text = card.read_text()
     snippet = re.search(r"```python\n(.*?)```", text, re.S).group(1)
     promised = re.search(r"# card: ([0-9.]+) cm", snippet).group(1)
     assert f"Test seed 0 alone: {promised} cm" in text
-    monkeypatch.chdir(tmp_path)  # no ./archive here: the snippet finds the shipped one
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        exec(compile(snippet, f"{card.name} snippet", "exec"), {"__name__": "__main__"})
-    assert re.fullmatch(rf"test seed 0: mean error {re.escape(promised)} cm\n", out.getvalue())
+    assert re.fullmatch(rf"test seed 0: mean error {re.escape(promised)} cm\n", printed[card.stem])
 
 
 def test_a_card_promises_the_snippets_number_not_its_sidecars(tmp_path):
@@ -45,8 +75,7 @@ def test_a_card_promises_the_snippets_number_not_its_sidecars(tmp_path):
         shutil.copy2(ROOT / "archive" / f"ikfree{suffix}", tmp_path / f"ikfree{suffix}")
     zip_path = tmp_path / "ikfree.zip"
     side = verify(zip_path)
-    policy, env_config, _ = load_policy(zip_path)
-    seed0 = card_number(policy, env_config)
+    seed0 = pinned_card_number(zip_path)
     card = write_card(zip_path, side).read_text()
     promise = f"# card: {seed0:.6f} cm"
     assert promise in card and f"Test seed 0 alone: {seed0:.6f} cm" in card
@@ -80,10 +109,7 @@ def test_a_card_is_numbered_on_the_pinned_matrix_path_from_any_process(monkeypat
     """A card written in a process whose torch runs on another matrix path (a training run on
     an AVX-512 machine: archive/ikfree's seed 0 moves from 5.408674 to 5.092068 cm there) is
     numbered in a child process pinned to SSE4.2, and gets the number its snippet prints."""
-    from panda_lead.training import archive
-
     zip_path = ROOT / "archive" / "ikfree.zip"  # a chaotic closed loop: the paths differ by mm
-    here = archive.pinned_card_number(zip_path)  # this process is pinned (conftest)
     children = []
     real_run = archive.subprocess.run
 
@@ -92,8 +118,8 @@ def test_a_card_is_numbered_on_the_pinned_matrix_path_from_any_process(monkeypat
         return real_run(cmd, **kwargs)
 
     monkeypatch.setattr(archive.subprocess, "run", spy)
-    monkeypatch.delenv("MKL_ENABLE_INSTRUCTIONS")
-    child = archive.pinned_card_number(zip_path)
-    assert children == ["SSE4_2"] and child == here
+    monkeypatch.delenv("MKL_ENABLE_INSTRUCTIONS", raising=False)
+    seed0 = pinned_card_number(zip_path)
+    assert children == ["SSE4_2"]
     promised = re.search(r"# card: ([0-9.]+) cm", (ROOT / "archive" / "ikfree.md").read_text())
-    assert f"{child:.6f}" == promised.group(1) == "5.408674"
+    assert f"{seed0:.6f}" == promised.group(1) == "5.408674"

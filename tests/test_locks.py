@@ -111,11 +111,11 @@ def test_two_runs_archiving_one_name_at_once_archive_it_once(run_with_a_model, t
     monkeypatch.setattr(archive_module, "evaluate", lambda *a, **k: {"mean_error_cm": 1.0,
                                                                        "in_band_pct": 50.0})
 
-    def card_number(policy, env_config):
+    def card_number(zip_path, policy=None, env_config=None):
         barrier.wait()  # both threads are past loading and about to take the name
         return 1.0
 
-    monkeypatch.setattr(archive_module, "card_number", card_number)
+    monkeypatch.setattr(archive_module, "pinned_card_number", card_number)
     results: dict[int, object] = {}
 
     def archive(i: int) -> None:
