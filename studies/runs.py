@@ -12,6 +12,8 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py curve --studies ikfree_long ikfree --plot results/ikfree_curve.png
     uv run studies/runs.py diagnostics --csv results/ikfree_long_diagnostics.csv  # PPO's health
 
+(studies/rederive.py retrains a summary's run for its first evaluations and compares the curve.)
+
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
 commit, timesteps and wall time, its evaluation curve (evaluation-set error every
 eval_freq steps), its best evaluation, the SHA-256 of its best model, and that model's
