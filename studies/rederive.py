@@ -11,9 +11,10 @@ exit 1: a point differs (the table says which, and by how much).
 
 What a mismatch means: the summary names the commit it trained at; code changed since, or the
 run trained on another CPU family. Measured 2026-11-25 (results/rederive.md): on the machine
-family that trained them, runs re-derive to every printed digit; runs trained on AMD EPYC,
-rerun on an Intel Xeon, differ from the first evaluation on (0.003 to 0.12 cm at 50k steps),
-at their own commit as at HEAD, and pinning torch's MKL to SSE4.2 does not bring them back.
+family that trained them, runs re-derive to every printed digit; runs trained on earlier
+sessions' machines (AMD EPYC where recorded), rerun on an Intel Xeon, differ from the first
+evaluation on (0.003 to 0.12 cm at 50k steps), at their own commit as at HEAD, and pinning
+torch's MKL to SSE4.2 does not bring them back.
 """
 
 from __future__ import annotations
