@@ -22,7 +22,6 @@ from ..training.config import (
     flag,
     read_run_config,
 )
-from ..training.loop import TrainingInterrupted, train
 from ..training.presets import get_preset, preset_table
 
 
@@ -63,8 +62,12 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
 @exit_on_user_error
 def run(argv: list[str]) -> None:
     description = f"{__doc__}\nPresets:\n{preset_table()}"
+    args = parse_args(argv, prog="train.py", description=description)
+    # After the command line is checked: the loop imports torch and stable-baselines3 (~5 s).
+    from ..training.loop import TrainingInterrupted, train
+
     try:
-        train(parse_args(argv, prog="train.py", description=description))
+        train(args)
     except TrainingInterrupted as exc:
         raise SystemExit(128 + exc.signum) from None
 

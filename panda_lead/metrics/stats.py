@@ -15,7 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from ..rollout import Rollout
 
@@ -142,6 +141,10 @@ def wilcoxon_p(deltas) -> float:
     d = d[np.isfinite(d)]
     if len(d) < 2 or not np.any(d != 0):
         return NAN
+    # Imported here: scipy.stats takes ~2 s to import, which every metrics.py run (a one-line
+    # refusal of a bad flag included) would otherwise pay before doing anything.
+    from scipy import stats
+
     with warnings.catch_warnings():
         # scipy warns about small n / ties; the p-value is still the right one to report.
         warnings.simplefilter("ignore")
