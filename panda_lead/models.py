@@ -80,6 +80,21 @@ def git_commit() -> str:
         return "?"
 
 
+def cpu_name() -> str:
+    """The CPU's model name ("?" where unknown). A training run's digits depend on it (torch's
+    and MuJoCo's kernels are picked by CPU: results/rederive.md), so sidecars record it."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "?"
+
+
 def write_json_atomic(path: Path, data: dict) -> None:
     with atomic_write(path, ".tmp.json") as tmp, open(tmp, "w") as f:
         json.dump(data, f, indent=2, sort_keys=True, default=str)

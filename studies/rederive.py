@@ -62,7 +62,10 @@ def load_summary(study: str, seed: int) -> dict:
         raise UserError(f"{path}: not a run summary ({exc})") from None
     if config.get("seed") != seed:
         raise UserError(f"{path}: its train_config has seed {config.get('seed')!r}, not {seed}")
-    return {"path": path, "config": config, "curve": points, "commit": summary.get("commit")}
+    cpu = summary.get("cpu")  # summaries before 2026-11-25 do not name it
+    cpu = cpu[:200] if isinstance(cpu, str) and cpu else None
+    return {"path": path, "config": config, "curve": points, "commit": summary.get("commit"),
+            "cpu": cpu}
 
 
 def rerun_curve(config: dict, evals: int, runs_dir: Path) -> list[tuple[int, float]]:
@@ -111,7 +114,11 @@ def main(args: Args) -> int:
     if args.evals > len(summary["curve"]):
         raise UserError(f"{summary['path']} holds {len(summary['curve'])} evaluations, "
                         f"fewer than --evals {args.evals}")
-    print(f"re-deriving {summary['path']} (trained at commit {summary['commit']}): "
+    from panda_lead.models import cpu_name
+
+    here = cpu_name()
+    print(f"re-deriving {summary['path']} (trained at commit {summary['commit']}, on "
+          f"{summary['cpu'] or 'a CPU it does not name'}; this CPU: {here}): "
           f"{args.evals} evaluation(s)", flush=True)
     if args.keep_run:
         rerun = rerun_curve(summary["config"], args.evals, Path("runs/rederive"))
@@ -122,8 +129,11 @@ def main(args: Args) -> int:
         print("(the rerun's folder above was temporary and is gone: --keep-run keeps it)")
     table, same = compare(summary["curve"][:args.evals], rerun[:args.evals])
     print(table)
+    other_cpu = summary["cpu"] not in (None, here)
     print("re-derived: every point equal to 4 decimals" if same else
-          "not re-derived: a point differs (see the module's docstring for why it can)")
+          "not re-derived: a point differs " + ("(it trained on another CPU: results/rederive.md)"
+                                                if other_cpu else
+                                                "(see the module's docstring for why it can)"))
     return 0 if same else 1
 
 

@@ -15,13 +15,13 @@ recomputed from git alone (run folders stay out of git: they are large and machi
 (studies/rederive.py retrains a summary's run for its first evaluations and compares the curve.)
 
 A summary (results/runs/<study>/seed_<N>.json) holds the run's full training config, code
-commit, timesteps and wall time, its evaluation curve (evaluation-set error every
-eval_freq steps), its best evaluation, the SHA-256 of its best model, and that model's
-per-trajectory test metrics on the 1,000 test seeds (mean error, settled error, jerk). The
-baselines file holds the same per-trajectory metrics of the classical controller and the
-analytic lead, at 100 Hz and with the IK at 500 Hz. `report` and `choose` read only these
-files. `keep` commits every seed's best model (archive/seeds/<study>_s<N>.zip and its
-sidecar), for the tables that evaluate each seed and not only the chosen one.
+commit and CPU (runs trained after 2026-11-25), timesteps and wall time, its evaluation curve
+(evaluation-set error every eval_freq steps), its best evaluation, the SHA-256 of its best
+model, and that model's per-trajectory test metrics on the 1,000 test seeds (mean error,
+settled error, jerk). The baselines file holds the same per-trajectory metrics of the classical
+controller and the analytic lead, at 100 Hz and with the IK at 500 Hz. `report` and `choose`
+read only these files. `keep` commits every seed's best model (archive/seeds/<study>_s<N>.zip
+and its sidecar), for the tables that evaluate each seed and not only the chosen one.
 
 The choice rule (`choose`): the run with the lowest best evaluation-set error (never a test
 seed); a tie (equal to 0.01 cm, the printed precision) goes to the lower training seed.
@@ -134,6 +134,7 @@ def summarize(args: Args) -> None:
         ctrl = harness.build("policy", 500, best)
         summary = {"study": args.study, "run": run.name, "preset": config.get("preset"),
                    "seed": config["seed"], "train_config": config, "commit": side.get("commit"),
+                   "cpu": side.get("cpu"),
                    "timesteps": last["timesteps"], "wall_time_s": last.get("wall_time_s"),
                    "eval_curve": _eval_curve(run),
                    "best": json.loads((run / "best.json").read_text()),

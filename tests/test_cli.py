@@ -55,9 +55,12 @@ def test_resume_continues_the_step_counter_and_archives(trained):
     archived = tmp / "archive" / "tiny.zip"
     assert archived.is_file()
     meta = json.loads((tmp / "archive" / "tiny.json").read_text())
-    for key in ("env_config", "train_config", "timesteps", "wall_time_s", "commit",
+    for key in ("env_config", "train_config", "timesteps", "wall_time_s", "commit", "cpu",
                 "test_metrics", "rates", "model_sha256", "policy"):
         assert key in meta, key
+    from panda_lead.models import cpu_name
+
+    assert meta["cpu"] == cpu_name() not in ("", "?")  # the machine family its digits hold on
     assert meta["rates"] == {"physics_hz": 500, "control_hz": 100}
     assert 0 < meta["test_metrics"]["mean_error_cm"] < 100
 

@@ -29,11 +29,11 @@ def rederive(tmp_path, monkeypatch):
     return module
 
 
-def write_summary(module, study, config: dict, curve) -> None:
+def write_summary(module, study, config: dict, curve, cpu=None) -> None:
     folder = module.RUNS_DIR / study
     folder.mkdir(parents=True, exist_ok=True)
     (folder / f"seed_{config['seed']}.json").write_text(json.dumps(
-        {"train_config": config, "eval_curve": curve, "commit": "test"}))
+        {"train_config": config, "eval_curve": curve, "commit": "test", "cpu": cpu}))
 
 
 def test_a_run_re_derives_and_a_changed_point_is_caught(rederive, tmp_path, capsys):
@@ -43,13 +43,15 @@ def test_a_run_re_derives_and_a_changed_point_is_caught(rederive, tmp_path, caps
     assert rederive.main(rederive.Args(study="tiny", seed=7, evals=2)) == 0
     out = capsys.readouterr().out
     assert "re-derived: every point equal" in out and "differs" not in out
+    assert "this CPU: " in out
 
     edited = [list(p) for p in curve]
     edited[1][1] += 0.01  # the second evaluation, as if the run had gone elsewhere
-    write_summary(rederive, "tiny", TINY.to_dict(), edited)
+    write_summary(rederive, "tiny", TINY.to_dict(), edited, cpu="A CPU of another family")
     assert rederive.main(rederive.Args(study="tiny", seed=7, evals=2)) == 1
-    rows = {line.split("|")[1].strip(): line for line in capsys.readouterr().out.splitlines()
-            if line.startswith("| ")}
+    out = capsys.readouterr().out
+    assert "on A CPU of another family" in out and "it trained on another CPU" in out
+    rows = {line.split("|")[1].strip(): line for line in out.splitlines() if line.startswith("| ")}
     assert "differs" not in rows["32"] and "differs" in rows["64"] and "-0.0100" in rows["64"]
 
 

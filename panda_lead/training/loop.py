@@ -22,6 +22,7 @@ from ..atomicio import folder_lock
 from ..errors import UserError
 from ..models import (
     ModelError,
+    cpu_name,
     git_commit,
     load_training_state,
     save_model,
@@ -47,6 +48,7 @@ from .envs import make_vec_env
 # model is saved (a sweep's later trial, or a save after someone edits the tree, would name
 # a commit or a clean tree it does not run). "+dirty": tracked files differed from it.
 CODE_COMMIT = git_commit()
+CPU = cpu_name()  # the machine family a run's digits re-derive on (results/rederive.md)
 
 
 class TrainingInterrupted(Exception):
@@ -174,7 +176,7 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     def sidecar(steps: int, **more) -> dict:
         return {"env_config": config.env.to_dict(), "train_config": config.to_dict(),
                 "timesteps": int(steps), "wall_time_s": round(clock.elapsed(), 1),
-                "commit": CODE_COMMIT, **more}
+                "commit": CODE_COMMIT, "cpu": CPU, **more}
 
     def save(model, path: Path, steps: int, **more) -> Path:
         return save_model(model, path, sidecar(steps, **more))
