@@ -92,7 +92,7 @@ def cpu_name() -> str:
                     return line.split(":", 1)[1].strip()
     except OSError:
         pass
-    return platform.processor() or "?"
+    return platform.processor() or platform.machine() or "?"  # e.g. aarch64: no model name
 
 
 def write_json_atomic(path: Path, data: dict) -> None:

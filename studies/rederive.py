@@ -19,7 +19,6 @@ torch's MKL to SSE4.2 does not bring them back.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
@@ -73,6 +72,7 @@ def rerun_curve(config: dict, evals: int, runs_dir: Path) -> list[tuple[int, flo
     ``evals`` evaluations; the (timesteps, evaluation error) points it logged."""
     from panda_lead import training
     from panda_lead.training.config import TrainArgs, TrainConfig
+    from panda_lead.training.evaluation import eval_curve
 
     trained = TrainConfig.from_dict(config)
     if not trained.eval_freq:
@@ -87,11 +87,7 @@ def rerun_curve(config: dict, evals: int, runs_dir: Path) -> list[tuple[int, flo
         seen.append(step)
         return len(seen) < evals
 
-    run_dir = training.train(args, on_eval=on_eval)
-    with open(run_dir / "tb" / "progress.csv") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("eval/mean_error_cm")]
-    return [(int(float(r["eval/timesteps"])), round(float(r["eval/mean_error_cm"]), 4))
-            for r in rows]
+    return [tuple(point) for point in eval_curve(training.train(args, on_eval=on_eval))]
 
 
 def compare(recorded: list[tuple[int, float]], rerun: list[tuple[int, float]]) -> tuple[str, bool]:

@@ -103,17 +103,11 @@ def _metrics_on_test(ctrl) -> dict[str, list[float]]:
     return out
 
 
-def _eval_curve(run: Path) -> list[list[float]]:
-    with open(run / "tb" / "progress.csv") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("eval/mean_error_cm")]
-    return [[int(float(r["eval/timesteps"])), round(float(r["eval/mean_error_cm"]), 4)]
-            for r in rows]
-
-
 def summarize(args: Args) -> None:
     from panda_lead import harness
     from panda_lead.atomicio import atomic_write
     from panda_lead.models import upgrade_legacy, verify
+    from panda_lead.training.evaluation import eval_curve
 
     if not args.runs:
         raise UserError("summarize needs run folders: --runs sweeps/NAME/runs/*/")
@@ -136,7 +130,7 @@ def summarize(args: Args) -> None:
                    "seed": config["seed"], "train_config": config, "commit": side.get("commit"),
                    "cpu": side.get("cpu"),
                    "timesteps": last["timesteps"], "wall_time_s": last.get("wall_time_s"),
-                   "eval_curve": _eval_curve(run),
+                   "eval_curve": eval_curve(run),
                    "best": json.loads((run / "best.json").read_text()),
                    "best_model_sha256": side["model_sha256"], "test_seeds": TEST,
                    "test": _metrics_on_test(ctrl)}

@@ -3,6 +3,9 @@ on the fixed evaluation set (seeds.EVAL_SET, never a test seed), played as one b
 
 from __future__ import annotations
 
+import csv
+from pathlib import Path
+
 import numpy as np
 
 from ..config import EnvConfig, as_config
@@ -30,3 +33,12 @@ def evaluate(act_fn, env_config: EnvConfig | dict, steps: int, episodes=EVAL_SET
         out[f"{shape}/mean_error_cm"] = float(np.mean([m for m, _ in vals]))
         out[f"{shape}/in_band_pct"] = float(np.mean([b for _, b in vals]))
     return out
+
+
+def eval_curve(run_dir: Path) -> list[list[float]]:
+    """A run's evaluations as logged (tb/progress.csv): [timesteps, evaluation-set mean error in
+    cm to 4 decimals] each, what a committed run summary holds (studies/runs.py)."""
+    with open(Path(run_dir) / "tb" / "progress.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r.get("eval/mean_error_cm")]
+    return [[int(float(r["eval/timesteps"])), round(float(r["eval/mean_error_cm"]), 4)]
+            for r in rows]
