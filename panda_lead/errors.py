@@ -173,3 +173,14 @@ def parse_cli(cls, argv: list[str] | None = None, **tyro_kwargs):
     prog = tyro_kwargs.get("prog") or os.path.basename(sys.argv[0]) or "the script"
     args = sys.argv[1:] if argv is None else list(argv)
     return call_cli(lambda: tyro.cli(cls, args=args, **tyro_kwargs), prog)
+
+
+def printable(value: object, limit: int = 200) -> str:
+    """Text from a file, safe to print: control characters (terminal escapes, newlines, bidi
+    overrides) replaced by '?', at most ``limit`` characters (an ellipsis marks a cut)."""
+    import unicodedata
+
+    text = value if isinstance(value, str) else repr(value)
+    text = text[:limit + 1]  # never scan a 5 MB line for a 200-character answer
+    text = "".join("?" if unicodedata.category(c).startswith("C") else c for c in text)
+    return text if len(text) <= limit else text[:limit - 1] + "\u2026"
