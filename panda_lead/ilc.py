@@ -36,7 +36,7 @@ INITS = ("analytic", "zero", "policy")
 
 @dataclass(frozen=True)
 class ILCConfig:
-    """The oracle's settings (defaults chosen on the tuning seeds: results/ilc_tuning.md)."""
+    """The oracle's settings (defaults chosen on the tuning seeds: results/studies/ilc/ilc_tuning.md)."""
 
     gain: float = field(default=0.5, metadata={"range": (0.0, 2.0)})
     """Share of the (shifted, smoothed) error added to the lead per iteration."""

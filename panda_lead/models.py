@@ -82,7 +82,8 @@ def git_commit() -> str:
 
 def cpu_name() -> str:
     """The CPU's model name ("?" where unknown). A training run's digits depend on it (torch's
-    and MuJoCo's kernels are picked by CPU: results/rederive.md), so sidecars record it."""
+    and MuJoCo's kernels are picked by CPU: results/studies/rederive/rederive.md), so sidecars
+    record it."""
     import platform
 
     try:

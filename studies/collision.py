@@ -33,7 +33,7 @@ class Args:
     """The collision-aware IK's clearance (m) for the "+ clearance" rows."""
     subset: Path | None = None
     """Read the collision-prone seeds from this file (one per line) instead of finding them."""
-    out: Path = Path("results/collision.md")
+    out: Path = Path("results/studies/collision/collision.md")
     """Where the table goes; the subset's seeds go beside it (<out stem>_seeds.txt)."""
     force: bool = False
     """Replace an existing table (and seeds file, when this run finds the subset)."""
@@ -111,7 +111,7 @@ def main(args: Args) -> None:
     command = ("uv run studies/collision.py --models " + " ".join(map(str, args.models))
                + (f" --clearance {args.clearance}" if args.clearance != 0.02 else "")
                + (f" --subset {args.subset}" if args.subset else "")
-               + (f" --out {args.out}" if args.out != Path("results/collision.md") else ""))
+               + (f" --out {args.out}" if args.out != Args.out else ""))
     lines = [f"`{command}`: the {len(seeds)} trajectories of the seed pool (seeds 1000000-1009999, "
              f"test distribution) whose classical rollout touches itself "
              f"([{seeds_file.name}]({seeds_file.name})); 5 s episodes, early termination off. "

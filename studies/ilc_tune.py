@@ -5,9 +5,9 @@
 
 For every (first replay's lead, gain, shift) of the grid, the oracle (panda_lead/ilc.py) runs
 ``--iterations`` replays of all tuning trajectories at once and records the mean tracking error
-after each replay. The table (results/ilc_tuning.md) gives the error after 10, 20 and the last
-replay; the chosen setting is the lowest error at the last replay, ties to the fewer replays,
-and becomes ILCConfig's defaults.
+after each replay. The table (results/studies/ilc/ilc_tuning.md) gives the error after 10, 20
+and the last replay; the chosen setting is the lowest error at the last replay, ties to the
+fewer replays, and becomes ILCConfig's defaults.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class Args:
     """The policy whose lead starts the 'policy' runs."""
     duration: float = 5.0
     """Episode length (s)."""
-    out: Path = Path("results/ilc_tuning.md")
+    out: Path = Path("results/studies/ilc/ilc_tuning.md")
     """The table."""
     force: bool = False
     """Replace an existing --out."""

@@ -38,7 +38,7 @@ if [ "${1:-main}" = main ]; then
   sweep --name ikfree --presets ikfree --seeds 1
   # the IK-free policy trained long. At a learning rate of 1e-3 it came apart (ikfree after
   # ~10M steps, stopped at 16.6M; with the tip error after 2M, stopped at 7.5M:
-  # results/ikfree_*diagnostics.csv), so the long run is ikfree_err_decay (3e-4, decayed), to
+  # results/studies/ikfree_long/*diagnostics.csv), so the long run is ikfree_err_decay (3e-4, decayed), to
   # 30M steps: what one session's time allowed, not the 50M the reference work estimated.
   sweep --name ikfree_long --presets ikfree_err_decay --seeds 1 --timesteps 30000000 \
     --eval-freq 250000
@@ -88,7 +88,7 @@ elif [ "$1" = side5m ]; then
   # (v9_5m_s45's seed 4 was lost with the machine that ran it, its study file with it; it ran
   # again on its own as v9_5m_s4, summarized into v9_5m the same way.)
 elif [ "$1" = headline5 ]; then
-  # The first two studies of results/rank.md, the headline and the previous one, from 3 seeds
+  # The first two studies of results/studies/rank.md, the headline and the previous one, from 3 seeds
   # to the 5 that every other study at the presets' budget has (2026-11-25): the headline rule
   # (runs.py rank) is then applied to 5 seeds each. Folders of their own, summarized into the
   # same studies by studies/results.sh.

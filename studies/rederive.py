@@ -10,8 +10,8 @@ after --evals evaluations. Exit 0: every compared point equal to the summary's 4
 exit 1: a point differs (the table says which, and by how much).
 
 What a mismatch means: the summary names the commit it trained at; code changed since, or the
-run trained on another CPU family. Measured 2026-11-25 (results/rederive.md): on the machine
-family that trained them, runs re-derive to every printed digit; runs trained on earlier
+run trained on another CPU family. Measured 2026-11-25 (results/studies/rederive/rederive.md): on
+the machine family that trained them, runs re-derive to every printed digit; runs trained on earlier
 sessions' machines (AMD EPYC where recorded), rerun on an Intel Xeon, differ from the first
 evaluation on (0.003 to 0.12 cm at 50k steps), at their own commit as at HEAD, and pinning
 torch's MKL to SSE4.2 does not bring them back.
@@ -127,9 +127,9 @@ def main(args: Args) -> int:
     print(table)
     other_cpu = summary["cpu"] not in (None, here)
     print("re-derived: every point equal to 4 decimals" if same else
-          "not re-derived: a point differs " + ("(it trained on another CPU: results/rederive.md)"
-                                                if other_cpu else
-                                                "(see the module's docstring for why it can)"))
+          "not re-derived: a point differs "
+          + ("(it trained on another CPU: results/studies/rederive/rederive.md)" if other_cpu
+             else "(see the module's docstring for why it can)"))
     return 0 if same else 1
 
 

@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl}
 runs() { uv run studies/runs.py "$@"; }
-# The headline: the first study of results/rank.md (the lowest mean best evaluation-set error
+# The headline: the first study of results/studies/rank.md (the lowest mean best evaluation-set error
 # over >= 3 seeds, HS) and its chosen run, archived under the run's name (H). At 5 seeds each
 # (2026-11-25, queue.sh headline5): `v5_err_decay`, its seed 4, archive/v5_err_decay_s4. The
 # previous headline (P), first at 3 seeds: `v5_err_decay_wide_lr3e-4`, its seed 1; before it
@@ -77,24 +77,24 @@ if [ "${1:-all}" = all ]; then
   #    the two studies' comparison over their seeds, below); the previous headline's own tables
   #    (results/$P_vs_*.md, its oracle) were made with it as H
   uv run metrics.py --prefix-a "$P" --prefix-b "$H" --breakdown --markdown \
-    | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > results/headline_vs_previous_headline.md
+    | awk '/^per seed/{skip=1} skip&&/^$/{skip=0;next} !skip' > results/headline/vs_previous_headline.md
   uv run metrics.py --prefix-a analytic --prefix-b "$H" --oracle ilc --markdown \
     > "results/${H}_vs_analytic_with_oracle.md"
   uv run metrics.py --prefix-a analytic --prefix-b v5_5m --oracle ilc --markdown \
-    > results/v5_5m_vs_analytic_with_oracle.md  # the previous headline against the same oracle
+    > results/studies/v5/v5_5m_with_oracle.md  # the previous headline against the same oracle
   uv run metrics.py --headline classical analytic v5_5m "$H" ilc --force \
     --labels Classical Analytic "RL lead (v5_5m)" "RL lead ($H)" "ILC oracle" \
-    --plot results/headline.png
+    --plot results/headline/headline.png
   # 5. The side studies under the evaluation harness (levels replace a model's own settings);
   #    the latency study's 5M policy (every seed of it at 1 and 3 steps) beside the 1M ones.
   #    They evaluate R, the headline when they were made; the later headlines alone, beside
-  #    the same baselines: H in results/robustness_$H/, P in results/headline_robustness/ (the
+  #    the same baselines: H in results/robustness_$H/, P in results/history/v5_err_decay_wide_lr3e-4/ (the
   #    folder it was made in, as its headline) (docs/questions.md 1-2).
   R=v5_err_decay
   for q in delay noise; do
     uv run studies/robustness.py --question $q --force --out "results/robustness_$H" \
       --models "archive/$H.zip" --seeds 0-499
-    uv run studies/robustness.py --question $q --force --out results/headline_robustness \
+    uv run studies/robustness.py --question $q --force --out results/history/v5_err_decay_wide_lr3e-4 \
       --models "archive/$P.zip" --seeds 0-499
   done
   [ -f archive/delayed_5m.zip ] || runs choose --study delayed_5m --archive-as delayed_5m \
@@ -105,10 +105,10 @@ if [ "${1:-all}" = all ]; then
   for study in delayed_5m err_delayed; do
     [ -d "sweeps/$study/runs" ] && runs keep --study "$study" --runs sweeps/"$study"*/runs
   done
-  uv run studies/robustness.py --question delay --levels 1 3 --out results/delay_seeds --force \
+  uv run studies/robustness.py --question delay --levels 1 3 --out results/studies/delay/delayed_5m_seeds --force \
     --models archive/seeds/delayed_5m_s*.zip --seeds 0-499
   #    the headline's configuration trained with delay (3 seeds), beside delayed_5m's chosen seed
-  uv run studies/robustness.py --question delay --force --out results/delay_err \
+  uv run studies/robustness.py --question delay --force --out results/studies/delay/err_delayed \
     --models archive/delayed_5m.zip "archive/$R.zip" archive/seeds/err_delayed_s*.zip --seeds 0-499
   [ -f archive/noisy_5m.zip ] || runs choose --study noisy_5m --archive-as noisy_5m \
     --runs sweeps/noisy_5m/runs
@@ -116,35 +116,35 @@ if [ "${1:-all}" = all ]; then
   uv run studies/robustness.py --question noise --force --models archive/indep_v5.zip \
     archive/noisy.zip archive/v5_5m.zip archive/noisy_5m.zip "archive/$R.zip" \
     "archive/$S.zip" --seeds 0-499
-  uv run studies/robustness.py --question noise --levels 1 2 --out results/noise_seeds --force \
+  uv run studies/robustness.py --question noise --levels 1 2 --out results/studies/noise/noisy_5m_seeds --force \
     --models archive/seeds/noisy_5m_s*.zip --seeds 0-499
   [ -f archive/v7_5m.zip ] || runs choose --study v7 --archive-as v7_5m --runs sweeps/v7/runs
   uv run studies/collision.py --force --models archive/indep_v5.zip archive/collision_v6.zip \
     archive/collision_v7.zip archive/joint.zip archive/v5_5m.zip archive/v7_5m.zip \
-    --subset results/collision_seeds.txt
+    --subset results/studies/collision/collision_seeds.txt
   uv run studies/collision.py --force --models archive/v5_5m.zip archive/v7_5m.zip \
-    --subset results/collision_seeds.txt --out results/collision_5m.md  # v7 against v5, both 5M
+    --subset results/studies/collision/collision_seeds.txt --out results/studies/collision/collision_5m.md  # v7 against v5, both 5M
   #    every v7 seed (committed, `runs keep`) against v5_5m's model (v5's 5M run folders are gone)
   [ -d sweeps/v7/runs ] && runs keep --study v7 --runs sweeps/v7/runs
   uv run studies/collision.py --force --models archive/v5_5m.zip archive/seeds/v7_s*.zip \
-    --subset results/collision_seeds.txt --out results/collision_seeds_v7/collision.md
+    --subset results/studies/collision/collision_seeds.txt --out results/studies/collision/v7_seeds/collision.md
   #    the joint residual at 5M (its chosen seed; seeds 4-5 ran in a folder of their own)
   [ -f archive/joint_5m.zip ] || runs choose --study joint_5m --archive-as joint_5m \
     --runs sweeps/joint_5m/runs sweeps/joint_5m_s45/runs
   uv run studies/collision.py --force --models archive/v5_5m.zip archive/joint_5m.zip \
-    --subset results/collision_seeds.txt --out results/collision_joint_5m.md
+    --subset results/studies/collision/collision_seeds.txt --out results/studies/collision/collision_joint_5m.md
 fi
 # From committed files only: the spread tables and the paired study comparisons.
 for study in v5 v5_joint climb v5_err_decay_wide_lr3e-4; do
   [ -d "results/runs/$study" ] && runs report --study "$study" > "results/spread_$study.md"
 done
-runs rank > results/rank.md  # the headline rule, applied to every study (selection data only)
-runs rates --study "$HS" > results/rates_500hz.md
-runs compare --study v5_joint --against-study v5 > results/v5_joint_vs_v5.md
-[ -d results/runs/v7 ] && runs compare --study v7 --against-study v5_joint > results/v7_vs_v5_joint.md
-[ -d results/runs/err_delayed ] && runs report --study err_delayed > results/spread_err_delayed.md \
-  && runs compare --study err_delayed --against-study delayed_5m > results/err_delayed_vs_delayed_5m.md
-[ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/climb_vs_v5.md
+runs rank > results/studies/rank.md  # the headline rule, applied to every study (selection data only)
+runs rates --study "$HS" > results/headline/rates_500hz.md
+runs compare --study v5_joint --against-study v5 > results/studies/v5_joint/vs_v5.md
+[ -d results/runs/v7 ] && runs compare --study v7 --against-study v5_joint > results/studies/v7/vs_v5_joint.md
+[ -d results/runs/err_delayed ] && runs report --study err_delayed > results/studies/err_delayed/spread.md \
+  && runs compare --study err_delayed --against-study delayed_5m > results/studies/err_delayed/vs_delayed_5m.md
+[ -d results/runs/climb ] && runs compare --study climb --against-study v5 > results/studies/climb/vs_v5.md
 for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v5_track v5_prev \
     v7 delayed_5m noisy_5m v5_err_decay_wide joint_5m curriculum_5m v9_5m; do
   [ -d "results/runs/$study" ] || continue
@@ -153,10 +153,10 @@ for study in v5_decay v5_err v5_err_decay v5_err_avg_decay v5_err_decay_smooth v
 done
 # the IK-free policy: the long run against ikfree's 5M, and its curve beside the lead's (docs/questions.md 7)
 if [ -d results/runs/ikfree_long ]; then
-  runs compare --study ikfree_long --against-study ikfree > results/ikfree_long_vs_ikfree.md
-  [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/spread_ikfree_5m.md
-  [ -d results/runs/ikfree_50m ] && runs report --study ikfree_50m > results/spread_ikfree_50m.md \
-    && runs compare --study ikfree_50m --against-study ikfree_long > results/ikfree_50m_vs_ikfree_long.md
+  runs compare --study ikfree_long --against-study ikfree > results/studies/ikfree_long/vs_ikfree.md
+  [ -d results/runs/ikfree_5m ] && runs report --study ikfree_5m > results/studies/ikfree_5m/spread.md
+  [ -d results/runs/ikfree_50m ] && runs report --study ikfree_50m > results/studies/ikfree_50m/spread.md \
+    && runs compare --study ikfree_50m --against-study ikfree_long > results/studies/ikfree_50m/vs_ikfree_long.md
   for lead in "$HS" "$P"; do  # against the headline's study and the previous headline's
     for study in ikfree_5m ikfree_50m; do
       [ -d "results/runs/$study" ] && runs compare --study "$study" --against-study "$lead" \
@@ -164,12 +164,12 @@ if [ -d results/runs/ikfree_long ]; then
     done
   done
   long=ikfree_long; [ -d results/runs/ikfree_50m ] && long="ikfree_50m ikfree_long"
-  runs curve --studies $long ikfree "$HS" --plot results/ikfree_curve.png \
-    --stopped results/ikfree_const_lr_diagnostics.csv results/ikfree_err_lr1e-3_diagnostics.csv
+  runs curve --studies $long ikfree "$HS" --plot results/studies/ikfree_long/curve.png \
+    --stopped results/studies/ikfree_long/stopped_const_lr_diagnostics.csv results/studies/ikfree_long/stopped_err_lr1e-3_diagnostics.csv
 fi
 # the speed curriculum's question is time to quality: its curve beside v5's (questions.md 5)
 [ -d results/runs/curriculum_5m ] && runs curve --studies curriculum_5m v5 \
-  --plot results/curriculum_curve.png > results/curriculum_curve.md  # + its steps to quality
+  --plot results/studies/curriculum_5m/curve.png > results/studies/curriculum_5m/curve.md  # + its steps to quality
 # the climb's steps against the step before them (each changes one thing)
 for pair in "v5_err_decay v5_err" "v5_err_decay v5_decay" "v5_err_avg_decay v5_err_decay" \
     "v5_err_decay_smooth v5_err_decay" "v5_err_decay_wide v5_err_decay" \

@@ -18,7 +18,7 @@ latency.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -38,8 +38,8 @@ class Args:
     """Levels (noise: sigma in cm; delay: control steps). Default: 0 0.5 1 2 / 0 1 2 3."""
     seeds: str = "0-999"
     """Test seeds."""
-    out: Path = Path("results")
-    """Folder for <question>.md and <question>.png."""
+    out: Path | None = None
+    """Folder for <question>.md and <question>.png (default: results/studies/<question>/)."""
     bootstrap: int = 10000
     """Bootstrap resamples for the CIs."""
     force: bool = False
@@ -83,6 +83,8 @@ def main(args: Args) -> None:
     from panda_lead.metrics import bootstrap_ci, compare
     from panda_lead.seeds import parse_seed_range
 
+    if args.out is None:
+        args = replace(args, out=_default_out(args.question))
     outputs = [args.out / f"{args.question}.md", args.out / f"{args.question}.png"]
     if any(p.exists() for p in outputs) and not args.force:
         raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
@@ -117,6 +119,10 @@ def main(args: Args) -> None:
     print(table)
 
 
+def _default_out(question: str) -> Path:
+    return Path("results/studies") / question
+
+
 def _fmt(x: float, ci: tuple[float, float]) -> str:
     from panda_lead.metrics import diff_text
 
@@ -125,7 +131,7 @@ def _fmt(x: float, ci: tuple[float, float]) -> str:
 
 def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:
     extra = (f" --levels {' '.join(f'{x:g}' for x in args.levels)}" if args.levels else "") + (
-        f" --out {args.out}" if args.out != Path("results") else "")
+        f" --out {args.out}" if args.out != _default_out(args.question) else "")
     lines = [f"`uv run studies/robustness.py --question {args.question} --models "
              f"{' '.join(map(str, args.models))} --seeds {args.seeds}{extra}` ({len(seeds)} "
              "test seeds, "

@@ -9,8 +9,9 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
-    uv run studies/runs.py curve --studies ikfree_long ikfree --plot results/ikfree_curve.png
-    uv run studies/runs.py diagnostics --csv results/ikfree_long_diagnostics.csv  # PPO's health
+    uv run studies/runs.py curve --studies ikfree_long ikfree \
+        --plot results/studies/ikfree_long/curve.png
+    uv run studies/runs.py diagnostics --csv results/studies/ikfree_long/diagnostics.csv  # PPO's health
 
 (studies/rederive.py retrains a summary's run for its first evaluations and compares the curve.)
 
@@ -163,8 +164,8 @@ def baselines(args: Args) -> None:
 
 def _tau_500hz() -> float:
     """The analytic lead's tau with the IK at 500 Hz, as tuned on the tuning seeds
-    (`uv run studies/tau.py --env.ik.substep-ik True`, results/tau_500hz.txt)."""
-    text = Path("results/tau_500hz.txt").read_text()
+    (`uv run studies/tau.py --env.ik.substep-ik True`, results/studies/tau/tau_500hz.txt)."""
+    text = Path("results/studies/tau/tau_500hz.txt").read_text()
     return float(text.split("best tau")[1].split()[0])
 
 

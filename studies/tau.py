@@ -1,13 +1,13 @@
 """Tune the analytic lead's look-ahead tau on the tuning seeds (never the test seeds).
 
     uv run studies/tau.py                 # tau 0.00-0.10 s in 0.01 s steps, 5 s episodes
-    uv run studies/tau.py --substep-ik > results/tau_500hz.txt   # with the IK at 500 Hz
+    uv run studies/tau.py --substep-ik > results/studies/tau/tau_500hz.txt   # with the IK at 500 Hz
 
 Every tau plays all tuning seeds as one batch; the best mean error wins. The result is
 controllers.DEFAULT_TAU (0.04 s), which the analytic baseline uses everywhere. With
 --substep-ik the IK runs at every physics substep (500 Hz, the reference work's rate) and the
 best tau there is what the 500 Hz analytic baseline uses (studies/runs.py reads it from
-results/tau_500hz.txt).
+results/studies/tau/tau_500hz.txt).
 """
 
 from __future__ import annotations

@@ -38,7 +38,8 @@ def test_a_collision_terminating_model_is_evaluated_to_the_end():
     dropped. An evaluation plays every episode to its end."""
     ctrl = harness.build("policy", 300, ROOT / "archive/collision_v6.zip")
     assert ctrl.config.terminate_on_collision is False
-    seeds = [int(s) for s in (ROOT / "results/collision_seeds.txt").read_text().split()[:8]]
+    pool = ROOT / "results/studies/collision/collision_seeds.txt"
+    seeds = [int(s) for s in pool.read_text().split()[:8]]
     rollouts = list(iter_record(ctrl.config, ctrl.act, seeds, meta=ctrl.meta))
     assert all(len(r.t) == 300 and r.meta["failure"] is None for r in rollouts)
     touched = [r.seed for r in rollouts if np.any(r.self_collision)]

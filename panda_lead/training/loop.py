@@ -48,7 +48,7 @@ from .envs import make_vec_env
 # model is saved (a sweep's later trial, or a save after someone edits the tree, would name
 # a commit or a clean tree it does not run). "+dirty": tracked files differed from it.
 CODE_COMMIT = git_commit()
-CPU = cpu_name()  # the machine family a run's digits re-derive on (results/rederive.md)
+CPU = cpu_name()  # the machine family a run's digits re-derive on (results/studies/rederive/rederive.md)
 
 
 class TrainingInterrupted(Exception):

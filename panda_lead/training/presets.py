@@ -91,7 +91,7 @@ PRESETS.update([
             env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
             net_arch=(256, 256)),
     # ... with its step matched: at 1e-3 the wider policy's KL per update was 2-6x the
-    # headline's (results/v5_err_decay_wide_s*_diagnostics.csv); at 3e-4 it is 0.006-0.010.
+    # headline's (results/studies/v5_err_decay_wide/s*_diagnostics.csv); at 3e-4 it is 0.006-0.010.
     _preset("v5_err_decay_wide_slow", "v5_err_decay_wide at a learning rate of 3e-4 (decayed "
             "linearly to 0), its step size matched to the headline's",
             env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
@@ -129,7 +129,8 @@ PRESETS.update([
             env=dict(obs_features=OBS_29, action="joint_target")),
     # At 1e-3 the 7-D joint policy's updates grow unstable as its std shrinks (PPO's KL per
     # update 0.03 -> 0.2-0.3, clip fraction 0.65; the lead policy's stays near 0.02): with
-    # the tip error in 2M steps, without it after ~10M (results/ikfree_*diagnostics.csv). The
+    # the tip error in 2M steps, without it after ~10M
+    # (results/studies/ikfree_long/*diagnostics.csv). The
     # long run takes the tip error the headline observes, a 3x smaller learning rate and the
     # climb's decay (docs/questions.md 7).
     _preset("ikfree_err_decay", "ikfree + the tip error observed (32-D), learning rate 3e-4 "
