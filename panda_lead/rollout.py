@@ -15,6 +15,8 @@ Layout on disk: ``rollouts/<prefix>/seed_<NNNN>.npz``. Arrays, one row per contr
 | self_collision  | (T,)   | bool   | two non-adjacent arm links touch                         |
 | collision_depth | (T,)   | m      | deepest self-collision penetration (0 when none)         |
 | reachable       | (T,)   | bool   | the target lies inside the arm's reachable workspace     |
+| q_goal          | (T, 7) | rad    | joint goals commanded to the PD (IK output) this step;   |
+|                 |        |        | optional: files written before it lack it (None)         |
 | meta            | ()     | str    | JSON: seed, shape, controller, model, duration, dt, env  |
 
 Files are written atomically (temporary name, then ``os.replace``): an interrupted write never
@@ -45,6 +47,8 @@ ARRAY_KEYS = (
     "t", "ee_pos", "target_pos", "target_vel", "target_acc", "lead",
     "qpos", "qvel", "self_collision", "collision_depth", "reachable",
 )
+# Columns added later: written always, read when present (older files lack them: None).
+OPTIONAL_KEYS = ("q_goal",)
 
 
 @dataclass
@@ -61,6 +65,7 @@ class Rollout:
     collision_depth: np.ndarray
     reachable: np.ndarray
     meta: dict = field(default_factory=dict)
+    q_goal: np.ndarray | None = None  # the commanded joint goals (limits.check reads them)
 
     @property
     def seed(self) -> int:
@@ -102,6 +107,8 @@ def save(rollout: Rollout, path: Path) -> Path:
     full disk is one UserError line (atomicio), the previous file intact."""
     path = Path(path)
     arrays = {k: np.asarray(getattr(rollout, k)) for k in ARRAY_KEYS}
+    arrays.update({k: np.asarray(getattr(rollout, k)) for k in OPTIONAL_KEYS
+                   if getattr(rollout, k) is not None})
     arrays["meta"] = np.array(json.dumps(rollout.meta, sort_keys=True))
     with atomic_write(path, ".tmp.npz") as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **arrays)
@@ -120,7 +127,7 @@ MAX_META_BYTES = 2**20
 MAX_FILE_BYTES = 64 * 2**20
 # Each array's columns per row ((T,) when absent), and whether it is a flag (bool) array.
 COLUMNS = {"ee_pos": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3, "lead": 3,
-           "qpos": 7, "qvel": 7}
+           "qpos": 7, "qvel": 7, "q_goal": 7}
 FLAG_KEYS = ("self_collision", "reachable")
 # Physical bounds: a finite value beyond them is a damaged file, never a motion of this arm (it
 # would overflow the metrics and drop the seed from one set). NaN and inf are not refused here:
@@ -133,7 +140,8 @@ LIMITS = {"t": (1e6, "s, longer than any episode"),
           "target_vel": (1e4, "m/s, faster than any speed"),
           "qvel": (1e4, "rad/s, faster than any speed"),
           "target_acc": (1e6, "m/s^2, beyond any acceleration"),
-          "qpos": (1e4, "rad, beyond any joint angle")}
+          "qpos": (1e4, "rad, beyond any joint angle"),
+          "q_goal": (1e4, "rad, beyond any joint angle")}
 
 
 def _damaged(path: Path, what: str) -> RolloutError:
@@ -216,7 +224,7 @@ def check_arrays(fields: dict[str, np.ndarray], path: Path) -> None:
     """Shapes (T,), (T, 3), (T, 7) with one T >= 1; numeric (flags: bool or integer) dtypes;
     no finite value beyond LIMITS. RolloutError naming the file, the array and the step."""
     T = fields["t"].shape[0] if fields["t"].ndim == 1 else -1
-    for key in ARRAY_KEYS:
+    for key in (*ARRAY_KEYS, *(k for k in OPTIONAL_KEYS if k in fields)):
         a = fields[key]
         want = (T, COLUMNS[key]) if key in COLUMNS else (T,)
         if T < 1 or a.shape != want:
@@ -250,6 +258,8 @@ def load(path: Path) -> Rollout:
                 raise RolloutError(f"{path}: not a rollout file, missing {', '.join(missing)}")
             meta = _read_meta(z, path)
             fields = {k: _read_array(z, path, k, MAX_ARRAY_BYTES) for k in ARRAY_KEYS}
+            fields.update({k: _read_array(z, path, k, MAX_ARRAY_BYTES) for k in OPTIONAL_KEYS
+                           if f"{k}.npy" in names})
     except RolloutError:
         raise
     except _READ_ERRORS as exc:
@@ -342,7 +352,7 @@ def record(env, act_fn, traj_seed: int, shape: str | None = None, meta: dict | N
 def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
     """Step every slot of a freshly reset task until each episode ends; one Rollout per slot."""
     core, n = task.core, task.n
-    rows: dict[str, list] = {k: [] for k in ARRAY_KEYS}
+    rows: dict[str, list] = {k: [] for k in (*ARRAY_KEYS, *OPTIONAL_KEYS)}
     end = np.full(n, -1)
     failure: list[str | None] = [None] * n
     returns = np.zeros(n)
@@ -360,6 +370,7 @@ def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
         rows["lead"].append(info["lead"].copy())
         rows["qpos"].append(core.qpos.copy())
         rows["qvel"].append(core.qvel.copy())
+        rows["q_goal"].append(core.q_goal.copy())
         rows["self_collision"].append(info["self_collision"].copy())
         rows["collision_depth"].append(info["collision_depth"].copy())
         rows["reachable"].append(info["reachable"].copy())
