@@ -121,7 +121,7 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
     starts = {"analytic": controllers.make_analytic(controllers.DEFAULT_TAU),
               "zero": controllers.classical}
     init = (controllers.make_policy(policy) if ilc.init == "policy" else starts[ilc.init])
-    meta["ilc"] = oracle_meta(ilc)
+    meta["ilc"] = oracle_meta(ilc, meta.get("model_sha256") if ilc.init == "policy" else None)
     return Controller(name, config, meta, ilc=ilc, init_act=init, policy=policy, dropped=dropped)
 
 

@@ -125,6 +125,38 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
     return leads, history
 
 
-def oracle_meta(ilc: ILCConfig) -> dict:
-    """What a rollout of the oracle records about it (rollout meta "ilc")."""
-    return {"oracle": True, **asdict(ilc)}
+def oracle_meta(ilc: ILCConfig, start_sha256: str | None = None) -> dict:
+    """What a rollout of the oracle records about it (rollout meta "ilc"): its settings and the
+    lead it started from, ``start_model_sha256`` (the starting model's SHA-256; None when it
+    started from the analytic or zero lead). The oracle belongs to that start: metrics.py
+    refuses to pair it with another model, and a results script compares this hash with the
+    model's sidecar to rebuild a stale oracle."""
+    return {"oracle": True, **asdict(ilc), "start_model_sha256": start_sha256}
+
+
+def oracle_start(meta: dict) -> tuple[str, str | None]:
+    """(the first replay's lead, its model's SHA-256 or None) from an oracle rollout's meta.
+    Older oracle files carried the starting model's hash only as the rollout's model_sha256."""
+    ilc = meta.get("ilc") or {}
+    init = ilc.get("init", "policy")
+    sha = ilc.get("start_model_sha256", meta.get("model_sha256") if init == "policy" else None)
+    return init, sha
+
+
+def check_oracle_start(oracle_meta_: dict, compared: dict[str, dict], oracle_name: str) -> None:
+    """Refuse an oracle started from a model that is none of the compared sets' models: its
+    ceiling belongs to that model, not to these (``compared``: set name -> a rollout's meta).
+    An oracle started from the analytic or zero lead is no model's (nor is a set that is no
+    ILC oracle's); an oracle that started from a model it did not record is refused too."""
+    init, sha = oracle_start(oracle_meta_)
+    if not (oracle_meta_.get("ilc") or {}).get("oracle") or init != "policy":
+        return
+    models = {name: m.get("model_sha256") for name, m in compared.items()
+              if m.get("model_sha256")}
+    if sha is None:
+        raise UserError(f"{oracle_name} started from a model it does not record; rebuild the "
+                        "oracle from the compared model")
+    if models and sha not in models.values():
+        name, theirs = next(iter(models.items()))
+        raise UserError(f"{oracle_name} started from the model {sha[:12]}, not from {name}'s "
+                        f"({theirs[:12]}): rebuild the oracle from that model")

@@ -126,7 +126,14 @@ def oracle_lines(args: Args, cmp: Comparison) -> list[str]:
     from ..metrics.pairing import charged
     from ..metrics.stats import rollout_metrics, share_captured
 
+    from ..ilc import check_oracle_start
+
     oracle = load_set(args.oracle, args.root)
+    check_oracle_start(next(iter(oracle.values())).meta,
+                       {name: next(iter(cmp.pairing.scored[label].values())).meta
+                        for name, label in ((f"{args.label_a} ({args.prefix_a})", cmp.label_a),
+                                            (f"{args.label_b} ({args.prefix_b})", cmp.label_b))},
+                       f"oracle ({args.oracle})")
     check_compatible(oracle, {s: cmp.pairing.scored[cmp.label_a][s] for s in cmp.seeds},
                      f"oracle ({args.oracle})", f"{args.label_a} ({args.prefix_a})")
     seeds = [s for s in cmp.seeds if s in oracle]

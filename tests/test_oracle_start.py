@@ -1,0 +1,88 @@
+"""The oracle belongs to its starting model: its rollouts record the lead they started from,
+and metrics.py refuses to read an oracle started from one model as another model's ceiling."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from panda_lead import rollout
+from panda_lead.errors import UserError
+from panda_lead.harness import build
+from panda_lead.ilc import ILCConfig, check_oracle_start, oracle_meta, oracle_start
+from panda_lead.models import DEFAULT_MODEL, archived, load_policy
+from panda_lead.rollout import Rollout
+
+REPO = Path(__file__).resolve().parents[1]
+SHA_X, SHA_Y = "a" * 64, "b" * 64
+
+
+def offset_rollout(offset_m, seed, meta, T=60, dt=0.01):
+    t = dt * np.arange(1, T + 1)
+    target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
+    z3, z7 = np.zeros((T, 3)), np.zeros((T, 7))
+    return Rollout(t=t, ee_pos=target + [offset_m, 0, 0], target_pos=target, target_vel=z3,
+                   target_acc=z3, lead=z3, qpos=z7, qvel=z7, self_collision=np.zeros(T, bool),
+                   collision_depth=np.zeros(T), reachable=np.ones(T, bool),
+                   meta=dict(seed=seed, shape="circle", duration=T * dt, dt=dt, **meta))
+
+
+def write(root, prefix, offset_m, meta, seeds=range(4)):
+    for s in seeds:
+        rollout.save(offset_rollout(offset_m, s, meta), rollout.rollout_path(prefix, s, root))
+
+
+def oracle(sha, init="policy"):
+    return {"controller": "ilc", "model_sha256": sha,
+            "ilc": oracle_meta(ILCConfig(init=init), sha)}
+
+
+def run_metrics(root, *args):
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
+    return subprocess.run([sys.executable, "metrics.py", "--root", str(root), "--prefix-a",
+                           "analytic", "--prefix-b", "learned", *args, "--bootstrap", "200"],
+                          cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
+
+
+def test_metrics_refuses_an_oracle_started_from_another_model(tmp_path):
+    write(tmp_path, "analytic", 0.03, {"controller": "analytic", "tau": 0.04})
+    write(tmp_path, "learned", 0.01, {"controller": "policy", "model_sha256": SHA_X})
+    write(tmp_path, "oracle_x", 0.005, oracle(SHA_X))
+    write(tmp_path, "oracle_y", 0.005, oracle(SHA_Y))
+    p = run_metrics(tmp_path, "--oracle", "oracle_y")
+    assert p.returncode == 2, p.stdout + p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:"), p.stderr
+    assert SHA_Y[:12] in lines[0] and SHA_X[:12] in lines[0] and "rebuild" in lines[0]
+    assert "captured" not in p.stdout
+    p = run_metrics(tmp_path, "--oracle", "oracle_x")  # its own oracle: the share is printed
+    assert p.returncode == 0, p.stderr
+    assert "oracle 0.50 cm; captured 80% [80, 80]" in p.stdout  # (3 - 1) / (3 - 0.5)
+
+
+def test_an_oracle_started_from_a_model_it_does_not_record_is_refused():
+    old = {"controller": "ilc", "ilc": {"oracle": True, "init": "policy"}}  # no hash anywhere
+    with pytest.raises(UserError, match="does not record"):
+        check_oracle_start(old, {"B": {"controller": "policy", "model_sha256": SHA_X}}, "o")
+    # An older file whose hash sits only in the rollout's model_sha256 still pairs with it.
+    legacy = {"controller": "ilc", "model_sha256": SHA_X, "ilc": {"oracle": True,
+                                                                  "init": "policy"}}
+    assert oracle_start(legacy) == ("policy", SHA_X)
+    check_oracle_start(legacy, {"B": {"controller": "policy", "model_sha256": SHA_X}}, "o")
+    # An oracle started from the analytic lead belongs to no model.
+    check_oracle_start(oracle(None, "analytic"),
+                       {"B": {"controller": "policy", "model_sha256": SHA_Y}}, "o")
+
+
+def test_the_built_oracle_records_its_starting_models_hash():
+    _, _, side = load_policy(archived(DEFAULT_MODEL))
+    ctrl = build("ilc", steps=10, ilc=ILCConfig(iterations=0))
+    assert ctrl.meta["ilc"]["start_model_sha256"] == side["model_sha256"]
+    assert oracle_start(ctrl.meta) == ("policy", side["model_sha256"])
+    analytic_start = build("ilc", steps=10, ilc=ILCConfig(iterations=0, init="analytic"))
+    assert oracle_start(analytic_start.meta) == ("analytic", None)
