@@ -10,6 +10,11 @@ from .config import TrainConfig
 # Penetration is millimetres deep, so the weight is large: 1 cm deep costs 1 per step, about
 # ten times the distance term at a typical 10 cm error.
 COLLISION_WEIGHT = 100.0
+# Issue 36's training noise: 1 cm on positions, 0.1 m/s on velocities, 1 m/s^2 on the target's
+# acceleration (studies/robustness.py's 1 cm level), and the tip error as the difference of two
+# independent 1 cm readings (sqrt(2) cm).
+DEPLOY_NOISE = {"ee_pos": 0.01, "target_pos": 0.01, "ee_vel": 0.1, "target_vel": 0.1,
+                "target_acc": 1.0, "tip_error": 0.01 * 2 ** 0.5}
 
 
 def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
@@ -144,6 +149,23 @@ PRESETS.update([
             "update stopped early once its KL passes 1.5 x 0.02 (SB3's target_kl)",
             env=dict(obs_features=OBS_29 + ("tip_error",), action="joint_target"),
             learning_rate=1e-3, lr_schedule="linear", target_kl=0.02),
+    # Issue 36, a lead a real arm could run: trained under every condition it is tested on.
+    # The headline's observation plus its previous action (a delayed system is Markov again
+    # only with the recent actions observed), delays of 0-3 control steps drawn per episode,
+    # 1 cm of observation noise on every measured input including the tip error it observes
+    # (tip - target of two 1 cm readings: 1.4 cm), and v5_err_decay_smooth's action-change
+    # penalty (0.1) against the jerk that noise provokes.
+    _preset("deploy_prev", "v5_err_decay + prev_action observed + delays 0-3 steps drawn per "
+            "episode + 1 cm noise incl. the tip error + action-change penalty 0.1 (21-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action"), obs_delay=3,
+                     action_delay=3, random_delay=True, w_action_change=0.1,
+                     obs_noise=DEPLOY_NOISE), lr_schedule="linear"),
+    # ... and the last 3 observations stacked: a short history the policy can filter noise
+    # and estimate the delay from (63-D).
+    _preset("deploy_hist", "deploy_prev + the last 3 observations stacked (63-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action"), obs_stack=3,
+                     obs_delay=3, action_delay=3, random_delay=True, w_action_change=0.1,
+                     obs_noise=DEPLOY_NOISE), lr_schedule="linear"),
 ])
 
 
