@@ -430,7 +430,8 @@ def adopt(src: str | Path, name: str, overrides: dict | None = None, force: bool
     check_plain_name(name, "--name")
     src = Path(src)
     env_config = EnvConfig().merged(overrides or {})
-    check_archive_free(name, force)  # fail before the work; checked again under the lock
+    # fail before the work; checked again under the lock
+    check_archive_free(name, force, flag="--name")
     foreign = inspect(src, env_config)
     obs_space, act_space = spaces_for(env_config)
     policy = ActorCriticPolicy(obs_space, act_space, lambda _: 0.0,
@@ -459,7 +460,7 @@ def adopt(src: str | Path, name: str, overrides: dict | None = None, force: bool
     dst.parent.mkdir(parents=True, exist_ok=True)
     model = _sb3_model(foreign, env_config)
     with archive_lock(dst):
-        check_archive_free(name, force)
+        check_archive_free(name, force, flag="--name")
         save_model(model, dst, sidecar)
         stored, _, side = load_policy(dst)  # the pair as written loads, weights only
         same = stored.state_dict()

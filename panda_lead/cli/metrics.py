@@ -335,5 +335,5 @@ def run(args: Args) -> int:
 
 
 @exit_on_user_error
-def main(argv: list[str] | None = None) -> int:
-    return run(parse_cli(Args, argv, description=__doc__))
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    return run(parse_cli(Args, argv, prog=prog, description=__doc__))

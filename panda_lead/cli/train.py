@@ -60,9 +60,9 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
 
 
 @exit_on_user_error
-def run(argv: list[str]) -> None:
+def run(argv: list[str], prog: str = "train.py") -> None:
     description = f"{__doc__}\nPresets:\n{preset_table()}"
-    args = parse_args(argv, prog="train.py", description=description)
+    args = parse_args(argv, prog=prog, description=description)
     # After the command line is checked: the loop imports torch and stable-baselines3 (~5 s).
     from ..training.loop import TrainingInterrupted, train
 
@@ -72,7 +72,7 @@ def run(argv: list[str]) -> None:
         raise SystemExit(128 + exc.signum) from None
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None, prog: str = "train.py") -> None:
     import sys
 
-    run(sys.argv[1:] if argv is None else argv)
+    run(sys.argv[1:] if argv is None else argv, prog)

@@ -34,14 +34,15 @@ def archive_path(name: str) -> Path:
     return ARCHIVE_DIR / f"{check_plain_name(name, '--archive')}.zip"
 
 
-def check_archive_free(name: str, force: bool) -> None:
-    """UserError unless archive/NAME is free (or ``force``); says what is there."""
+def check_archive_free(name: str, force: bool, flag: str = "--archive") -> None:
+    """UserError unless archive/NAME is free (or ``force``); says what is there, and names
+    ``flag``, the option that chose the name (train.py's --archive, eval.py --adopt's --name)."""
     path = archive_path(name)
     state = pair_state(path)
     if state == "absent" or force:
         return
     if state == "valid":
-        raise UserError(f"{path} exists; choose another --archive name, or add --force to "
+        raise UserError(f"{path} exists; choose another {flag} name, or add --force to "
                         "replace it")
     raise UserError(f"{path} exists but {state}; restore its sidecar from the model with "
                     f"`uv run eval.py --model {path} --restore-sidecar`, or add --force to "

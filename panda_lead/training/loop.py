@@ -275,7 +275,7 @@ def _summary(run_dir: Path, tracker: TrackingEval, steps: int, final: Path, cloc
                      f"{base['analytic']['mean_error_cm']:.2f} cm): {best}")
     else:
         lines.append(f"no evaluation ran (--eval-freq 0); final model: {final}")
-    prefix = run_dir.name.split("__")[0]
+    prefix = run_dir.name  # unique to the run: a second run's eval set is not refused
     lines += ["next: test it on the test seeds and compare with the classical controller:",
               f"  uv run eval.py --seeds 0-99 --prefix {prefix} --model {model}",
               "  uv run ikpd.py --seeds 0-99 --prefix ikpd",
