@@ -208,3 +208,12 @@ def _run(args: Args) -> None:
             write_video(args, seed, overrides)
         else:
             watch(args, seed, overrides)
+
+
+if __name__ == "__main__":  # python -m panda_lead.cli.run: eval's command line (cli/main.py)
+    import sys
+
+    from .main import eval_command
+
+    eval_command(sys.argv[1:], prog="python -m panda_lead.cli.run",
+                 cmd="python -m panda_lead.cli.run")

@@ -93,8 +93,8 @@ def plot(traj: Trajectory, duration: float, out: Path | None, show: bool) -> Non
 
 
 @exit_on_user_error
-def main(argv: list[str] | None = None) -> int:
-    args = parse_cli(Args, argv, description=__doc__)
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    args = parse_cli(Args, argv, prog=prog, description=__doc__)
     check_seed(args.seed)
     if not (math.isfinite(args.duration) and 0 < args.duration <= MAX_DURATION_S):
         raise UserError(f"--duration must be a number of seconds in (0, {MAX_DURATION_S:g}], "
