@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The training runs behind the Results, one after another (`bash studies/queue.sh`). Each
-# study's runs land under sweeps/<name>/runs/; `bash studies/results.sh` turns them into the
+# study's runs land under sweeps/<name>/runs/; `uv run studies/results.py` turns them into the
 # committed summaries (results/runs/) and every table and figure.
 #
 # At the presets' budget (5M steps: 9-14 minutes per run alone on 2 cores, ~27 with two at once):
@@ -56,7 +56,7 @@ elif [ "$1" = next ]; then
   # the headline's configuration trained with latency: does the tip error survive a delay
   # when the policy learns with one? (docs/questions.md 2: untrained, it collapses at 1 step)
   # Seeds 1 and 2 ran as the grid `err_delayed`; a grid's seeds are fixed, so seed 3 is its
-  # own study folder, summarized into err_delayed (studies/results.sh). The preset
+  # own study folder, summarized into err_delayed (studies/results.py). The preset
   # `err_delayed` names the same config (a test checks it against the committed summaries).
   D="--env.obs-delay 3 --env.action-delay 3 --env.random-delay"
   sweep --name err_delayed --presets v5_err_decay --seeds 1 2 --train-args="$D"
@@ -77,7 +77,7 @@ elif [ "$1" = side5m ]; then
   # The 1M side studies at the presets' budget, 5 seeds each (~15 runs of ~10 minutes on 2
   # cores, 2026-11-25); each compares with v5's 5 seeds (`runs.py compare --against-study v5`).
   # Seeds 1-3 of every study first, then seeds 4-5 in folders of their own (a grid's seeds
-  # cannot change), summarized into the same study by studies/results.sh.
+  # cannot change), summarized into the same study by studies/results.py.
   C="--curriculum-steps 500000"
   sweep --name joint_5m --presets joint --seeds 1 2 3
   sweep --name curriculum_5m --presets v5 --seeds 1 2 3 --train-args="$C"
@@ -91,7 +91,7 @@ elif [ "$1" = headline5 ]; then
   # The first two studies of results/studies/rank.md, the headline and the previous one, from 3 seeds
   # to the 5 that every other study at the presets' budget has (2026-11-25): the headline rule
   # (runs.py rank) is then applied to 5 seeds each. Folders of their own, summarized into the
-  # same studies by studies/results.sh.
+  # same studies by studies/results.py.
   sweep --name v5_err_decay_wide_lr3e-4_s45 --presets v5_err_decay_wide --seeds 4 5 \
     --train-args="--learning-rate 3e-4"
   sweep --name v5_err_decay_s45 --presets v5_err_decay --seeds 4 5

@@ -1,0 +1,89 @@
+"""What the tables read, refreshed before `studies/results.py` (its `all` section) builds them:
+each sweep's committed run summaries, the archived models the tables measure, and the rollout
+sets of the test seeds. A model is archived only when missing (an archived model is committed
+and other results name it); a rollout set is replayed when missing or when the model that
+played it is not the archived one (its files' model_sha256 against the model's sidecar)."""
+
+from __future__ import annotations
+
+import glob
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from results_steps import HEADLINE, HEADLINE_STUDY, PREVIOUS, SMOOTH
+
+SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
+              "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
+              "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
+              "v5_err_decay_wide_lr3e-4", "joint_5m", "curriculum_5m", "v9_5m", "ikfree_50m"]
+# study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main)
+EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
+               **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
+                                            HEADLINE_STUDY, "ikfree_5m"]}}
+# archived name -> (study, sweep folders holding its runs)
+CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
+                                                              f"{HEADLINE_STUDY}_s45"]),
+          PREVIOUS: (PREVIOUS, [PREVIOUS]), SMOOTH: (SMOOTH, [SMOOTH]),
+          "ikfree_long": ("ikfree_long", ["ikfree_long"]),
+          "delayed_5m": ("delayed_5m", ["delayed_5m"]), "noisy_5m": ("noisy_5m", ["noisy_5m"]),
+          "v7_5m": ("v7", ["v7"]), "joint_5m": ("joint_5m", ["joint_5m", "joint_5m_s45"])}
+KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
+        "v7": "v7"}  # every seed's model committed (archive/seeds/), for the per-seed tables
+POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long"]
+
+
+def _run(root: Path, *argv: str) -> None:
+    print("run: uv run " + " ".join(argv), flush=True)
+    subprocess.run([sys.executable, *argv], cwd=root, check=True)
+
+
+def _set_model(root: Path, prefix: str) -> str | None:
+    """The model_sha256 a rollout set's first file records (None: no set, or no model)."""
+    files = sorted((root / "rollouts" / prefix).glob("seed_*.npz"))
+    if not files:
+        return None
+    from panda_lead.rollout import read_meta
+
+    meta = read_meta(files[0])
+    ilc = meta.get("ilc") or {}
+    return ilc.get("start_model_sha256") or meta.get("model_sha256")
+
+
+def _archived_sha(root: Path, name: str) -> str | None:
+    side = root / "archive" / f"{name}.json"
+    return json.loads(side.read_text()).get("model_sha256") if side.exists() else None
+
+
+def prepare(root: Path) -> None:
+    runs = ["studies/runs.py"]
+    for study in SUMMARIZED:
+        for folder in [study, *EXTRA_SEEDS.get(study, [])]:
+            found = sorted(glob.glob(f"sweeps/{folder}/runs/*/", root_dir=root))
+            if found:
+                _run(root, *runs, "summarize", "--study", study, "--runs", *found)
+    if not (root / "results/runs/baselines.json").exists():
+        _run(root, *runs, "baselines")
+    for name, (study, folders) in CHOSEN.items():
+        dirs = [f"sweeps/{f}/runs" for f in folders if (root / f"sweeps/{f}/runs").is_dir()]
+        if not (root / f"archive/{name}.zip").exists() and dirs:
+            _run(root, *runs, "choose", "--study", study, "--archive-as", name, "--runs", *dirs)
+    for study, pattern in KEPT.items():
+        dirs = sorted(glob.glob(f"sweeps/{pattern}/runs", root_dir=root))
+        if dirs:
+            _run(root, *runs, "keep", "--study", study, "--runs", *dirs)
+    for base, extra in [("classical", []), ("analytic", ["--controller", "analytic"])]:
+        if not (root / "rollouts" / base).is_dir():
+            _run(root, "ikpd.py", "--seeds", "0-999", "--prefix", base, *extra)
+    for m in POLICY_SETS:
+        want = _archived_sha(root, m)
+        have = _set_model(root, m)
+        if want and have != want:
+            _run(root, "eval.py", "--seeds", "0-999", "--prefix", m, "--model", f"archive/{m}.zip",
+                 "--force")
+    # the oracle: 20 replays per trajectory, started from the headline's lead, seeds 0-199
+    want = _archived_sha(root, HEADLINE)
+    if want and _set_model(root, "ilc") != want:
+        _run(root, "ikpd.py", "--controller", "ilc", "--seeds", "0-199", "--prefix", "ilc",
+             "--model", f"archive/{HEADLINE}.zip", "--force")

@@ -1,0 +1,184 @@
+"""The steps of `studies/results.py`: every table and figure under results/ that a command
+remakes, the command, and what it reads. Read by results.py; change the headline here.
+
+A step's command is an argument list run with the repo's Python (shown as `uv run ...`).
+`{out0}`, `{out1}`... stand for its outputs and `{dir}` for their folder: the step runs with
+them pointing into a scratch folder and its files are moved into place only when it succeeds.
+A step whose `stdout` is set writes its first output from the command's standard output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# The headline: the first study of results/studies/rank.md (the lowest mean best
+# evaluation-set error over >= 3 seeds) and its chosen run, archived under the run's name. At 5
+# seeds each (2026-11-25, queue.sh headline5): `v5_err_decay`, its seed 4. When it moves, move
+# results/headline/'s model tables to results/history/<old>/ (history/README.md) and rerun.
+HEADLINE_STUDY = "v5_err_decay"
+HEADLINE = "v5_err_decay_s4"
+PREVIOUS = "v5_err_decay_wide_lr3e-4"  # the previous headline (its own tables: history/)
+ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measured (seed 2)
+SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, the jerk)
+COLLISION_SEEDS = "results/studies/collision/collision_seeds.txt"
+
+
+@dataclass(frozen=True)
+class Step:
+    outs: tuple[str, ...]
+    """What it writes (repo-relative files under results/)."""
+    argv: tuple[str, ...]
+    """The command, without `uv run`: a script and its flags."""
+    inputs: tuple[str, ...] = ()
+    """The files and folders it reads: a change in any of them makes its outputs stale."""
+    stdout: bool = False
+    """outs[0] is the command's standard output."""
+    per_seed_dropped: bool = False
+    """Drop metrics.py --breakdown's long per-seed section from the table."""
+    section: str = "tables"
+    """"tables": reads only committed files (results/runs/), minutes; "all": needs the runs'
+    rollout sets or sweeps, or evaluates models (an hour or more on 2 cores)."""
+
+
+def _runs(*names: str) -> tuple[str, ...]:
+    return tuple(f"results/runs/{n}" for n in names)
+
+
+def _report(study: str) -> Step:
+    return Step((f"results/studies/{study}/spread.md",),
+                ("studies/runs.py", "report", "--study", study),
+                _runs(study, "baselines.json"), stdout=True)
+
+
+def _compare(study: str, against: str) -> Step:
+    return Step((f"results/studies/{study}/vs_{against}.md",),
+                ("studies/runs.py", "compare", "--study", study, "--against-study", against),
+                _runs(study, against), stdout=True)
+
+
+def _pair(a: str, b: str, out: str) -> Step:
+    """metrics.py's paired table, B against A, from the rollout sets of the test seeds."""
+    return Step((out,), ("metrics.py", "--prefix-a", a, "--prefix-b", b, "--breakdown",
+                         "--markdown"), (f"rollouts/{a}", f"rollouts/{b}"), stdout=True,
+                per_seed_dropped=True, section="all")
+
+
+def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
+    return Step((f"{out_dir}/{question}.md", f"{out_dir}/{question}.png"),
+                ("studies/robustness.py", "--question", question, "--models", *models,
+                 "--seeds", "0-499", *extra, "--out", "{dir}"), tuple(models), section="all")
+
+
+def _collision(models: list[str], out: str) -> Step:
+    """collision.py writes the subset's seeds beside its table (<out stem>_seeds.txt)."""
+    return Step((out, out.replace(".md", "_seeds.txt")),
+                ("studies/collision.py", "--models", *models, "--subset", COLLISION_SEEDS,
+                 "--out", "{out0}"), (*models, COLLISION_SEEDS), section="all")
+
+
+def table_steps() -> list[Step]:
+    H, HS, P, R, S = HEADLINE, HEADLINE_STUDY, PREVIOUS, ROBUST, SMOOTH
+    hd = "results/headline"
+    steps = [
+        # from committed files only: spread tables and study comparisons
+        Step(("results/studies/rank.md",), ("studies/runs.py", "rank"), ("results/runs",),
+             stdout=True),
+        Step((f"{hd}/rates_500hz.md",), ("studies/runs.py", "rates", "--study", HS),
+             _runs(HS, "baselines.json") + ("results/studies/tau/tau_500hz.txt",), stdout=True),
+    ]
+    for study in ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay",
+                  "v5_err_avg_decay", "v5_err_decay_smooth", "v5_err_decay_wide",
+                  "v5_err_decay_wide_lr3e-4", "v7", "delayed_5m", "err_delayed", "noisy_5m",
+                  "joint_5m", "curriculum_5m", "v9_5m", "ikfree_5m", "ikfree_50m"]:
+        steps.append(_report(study))
+    for study in ["v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
+                  "v5_err_decay_smooth", "v5_err_decay_wide", "v7", "delayed_5m", "noisy_5m",
+                  "joint_5m", "curriculum_5m", "v9_5m"]:
+        steps.append(_compare(study, "v5"))
+    for study, against in [("v7", "v5_joint"), ("err_delayed", "delayed_5m"),
+                           ("v5_err_decay", "v5_err"), ("v5_err_decay", "v5_decay"),
+                           ("v5_err_avg_decay", "v5_err_decay"),
+                           ("v5_err_decay_smooth", "v5_err_decay"),
+                           ("v5_err_decay_wide", "v5_err_decay"), (P, "v5_err_decay"),
+                           ("ikfree_long", "ikfree"), ("ikfree_50m", "ikfree_long"),
+                           ("ikfree_5m", HS), ("ikfree_50m", HS), ("ikfree_5m", P),
+                           ("ikfree_50m", P)]:
+        steps.append(_compare(study, against))
+    stopped = ("results/studies/ikfree_long/stopped_const_lr_diagnostics.csv",
+               "results/studies/ikfree_long/stopped_err_lr1e-3_diagnostics.csv")
+    steps += [
+        Step(("results/studies/ikfree_long/curve.png",),
+             ("studies/runs.py", "curve", "--studies", "ikfree_50m", "ikfree_long", "ikfree", HS,
+              "--plot", "{out0}", "--stopped", *stopped),
+             _runs("ikfree_50m", "ikfree_long", "ikfree", HS) + stopped),
+        # the speed curriculum's question is time to quality: its curve beside v5's, and its
+        # steps to quality (the table is the command's output)
+        Step(("results/studies/curriculum_5m/curve.md",
+              "results/studies/curriculum_5m/curve.png"),
+             ("studies/runs.py", "curve", "--studies", "curriculum_5m", "v5", "--plot", "{out1}"),
+             _runs("curriculum_5m", "v5"), stdout=True),
+    ]
+    # PPO's health per window, from the run folders (not committed; a `*` is expanded)
+    for study in ["ikfree_long", "ikfree_50m"]:
+        steps.append(Step((f"results/studies/{study}/diagnostics.csv",),
+                          ("studies/runs.py", "diagnostics", "--runs", f"sweeps/{study}/runs/*/",
+                           "--csv", "{out0}"), (f"sweeps/{study}/runs",), section="all"))
+    for study, seeds in [("v5_err_decay", (1, 2, 3)), ("v5_err_decay_wide", (1, 2, 3)),
+                         (P, (3,))]:  # the wider network's health against the headline's
+        for k in seeds:
+            steps.append(Step((f"results/studies/{study}/s{k}_diagnostics.csv",),
+                              ("studies/runs.py", "diagnostics", "--runs",
+                               f"sweeps/{study}/runs/*__{k}__*/", "--csv", "{out0}",
+                               "--window", "1000000"), (f"sweeps/{study}/runs",), section="all"))
+    # the headline's paired tables, its oracle and the headline figure
+    steps += [
+        _pair("classical", "analytic", f"{hd}/analytic_vs_classical.md"),
+        _pair("classical", H, f"{hd}/vs_classical.md"),
+        _pair("analytic", H, f"{hd}/vs_analytic.md"),
+        _pair("v5_5m", H, f"{hd}/vs_v5_5m.md"),
+        _pair("indep_v5", H, f"{hd}/vs_indep_v5.md"),
+        _pair(P, H, f"{hd}/vs_previous_headline.md"),
+        _pair("indep_v5", "v5_5m", "results/studies/v5/v5_5m_vs_indep_v5.md"),
+        Step((f"{hd}/with_oracle.md",), ("metrics.py", "--prefix-a", "analytic", "--prefix-b", H,
+                                         "--oracle", "ilc", "--markdown"),
+             ("rollouts/analytic", f"rollouts/{H}", "rollouts/ilc"), stdout=True, section="all"),
+        Step(("results/studies/v5/v5_5m_with_oracle.md",),
+             ("metrics.py", "--prefix-a", "analytic", "--prefix-b", "v5_5m", "--oracle", "ilc",
+              "--markdown"), ("rollouts/analytic", "rollouts/v5_5m", "rollouts/ilc"), stdout=True,
+             section="all"),
+        Step((f"{hd}/headline.png",),
+             ("metrics.py", "--headline", "classical", "analytic", "v5_5m", H, "ilc", "--labels",
+              "Classical", "Analytic", "RL lead (v5_5m)", f"RL lead ({H})", "ILC oracle",
+              "--plot", "{out0}"),
+             ("rollouts/classical", "rollouts/analytic", "rollouts/v5_5m", f"rollouts/{H}",
+              "rollouts/ilc"), section="all"),
+    ]
+    for b in [H, "v5_5m", "analytic", "classical"]:
+        steps.append(_pair(b, "ikfree_long", f"results/studies/ikfree_long/ikfree_long_vs_{b}.md"))
+    # latency and noise under the evaluation harness (levels replace a model's own settings)
+    a = "archive/"
+    steps += [
+        _robust("delay", [f"{a}{H}.zip"], hd), _robust("noise", [f"{a}{H}.zip"], hd),
+        _robust("delay", [f"{a}indep_v5.zip", f"{a}delayed.zip", f"{a}v5_5m.zip",
+                          f"{a}delayed_5m.zip", f"{a}{R}.zip"], "results/studies/delay"),
+        _robust("delay", [f"{a}seeds/delayed_5m_s{k}.zip" for k in range(1, 6)],
+                "results/studies/delay/delayed_5m_seeds", "--levels", "1", "3"),
+        _robust("delay", [f"{a}delayed_5m.zip", f"{a}{R}.zip"]
+                + [f"{a}seeds/err_delayed_s{k}.zip" for k in range(1, 4)],
+                "results/studies/delay/err_delayed"),
+        _robust("noise", [f"{a}indep_v5.zip", f"{a}noisy.zip", f"{a}v5_5m.zip",
+                          f"{a}noisy_5m.zip", f"{a}{R}.zip", f"{a}{S}.zip"],
+                "results/studies/noise"),
+        _robust("noise", [f"{a}seeds/noisy_5m_s{k}.zip" for k in range(1, 6)],
+                "results/studies/noise/noisy_5m_seeds", "--levels", "1", "2"),
+        # self-collision on the collision-prone trajectories of the seed pool
+        _collision([f"{a}indep_v5.zip", f"{a}collision_v6.zip", f"{a}collision_v7.zip",
+                    f"{a}joint.zip", f"{a}v5_5m.zip", f"{a}v7_5m.zip"],
+                   "results/studies/collision/collision.md"),
+        _collision([f"{a}v5_5m.zip", f"{a}v7_5m.zip"], "results/studies/collision/collision_5m.md"),
+        _collision([f"{a}v5_5m.zip"] + [f"{a}seeds/v7_s{k}.zip" for k in range(1, 6)],
+                   "results/studies/collision/v7_seeds/collision.md"),
+        _collision([f"{a}v5_5m.zip", f"{a}joint_5m.zip"],
+                   "results/studies/collision/collision_joint_5m.md"),
+    ]
+    return steps

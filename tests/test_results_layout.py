@@ -1,0 +1,119 @@
+"""results/ as an index (issue 38 item 2) and the results script's promises (RELIABILITY-4
+defect #2): the generated results/README.md lists every current file and nothing else; a step
+that fails leaves the committed table as it was; a stale step is rebuilt, a current one is not;
+a mistyped section is one error line and exit status 2. Heavy steps are stubbed by small
+commands: the engine is what is tested, not the tables."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "studies"))
+
+import results_index  # noqa: E402
+from results_steps import Step, table_steps  # noqa: E402
+
+import results  # noqa: E402
+
+
+def _links(index_text: str) -> set[str]:
+    return {"results/" + m for m in re.findall(r"^\| \[[^\]]+\]\(([^)]+)\)", index_text, re.M)}
+
+
+def test_committed_index_lists_every_result_and_nothing_missing():
+    listed = _links((ROOT / "results/README.md").read_text())
+    present = set(results_index.listed_files(ROOT))
+    assert present - listed == set(), "not in results/README.md: rerun `uv run studies/results.py index`"
+    assert listed - present == set(), "listed in results/README.md but absent"
+    assert present, "no results found"
+
+
+def test_results_top_level_is_a_handful_of_folders():
+    top = {p.name for p in (ROOT / "results").iterdir() if not p.name.startswith(".")}
+    assert top <= {"headline", "studies", "bench", "history", "runs", "README.md", "manifest.json"}
+    assert (ROOT / "results/history/README.md").exists()
+
+
+def test_every_step_writes_inside_the_layout_and_no_two_steps_share_an_output():
+    outs = [o for s in table_steps() for o in s.outs]
+    assert len(outs) == len(set(outs))
+    assert all(o.startswith(("results/headline/", "results/studies/", "results/bench/")) for o in outs)
+
+
+def _fake(tmp: Path, body: str) -> Step:
+    """A step whose command is a tiny Python script (instead of runs.py or metrics.py)."""
+    script = tmp / "fake_step.py"
+    script.write_text(body)
+    (tmp / "results").mkdir(exist_ok=True)
+    (tmp / "input.txt").write_text("v1\n")
+    return Step(("results/table.md",), (str(script),), ("input.txt",), stdout=True)
+
+
+def test_a_failing_step_leaves_the_committed_table_intact(tmp_path, capsys):
+    committed = "| a committed table |\n"
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results/table.md").write_text(committed)
+    step = _fake(tmp_path, "import sys\nprint('| half a table')\nsys.exit(1)\n")
+    assert results.build(tmp_path, [step]) == 1
+    assert (tmp_path / "results/table.md").read_text() == committed
+    assert not [p for p in (tmp_path / "results").iterdir() if p.name.startswith(".step-")]
+    assert "FAILED (exit status 1)" in capsys.readouterr().err
+
+
+def test_a_step_that_writes_nothing_is_a_failure_too(tmp_path):
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results/fig.png").write_bytes(b"old figure")
+    step = Step(("results/fig.png",), (str(tmp_path / "noop.py"), "--plot", "{out0}"))
+    (tmp_path / "noop.py").write_text("pass\n")
+    assert results.build(tmp_path, [step]) == 1
+    assert (tmp_path / "results/fig.png").read_bytes() == b"old figure"
+
+
+def test_stale_steps_rebuild_and_current_ones_do_not(tmp_path):
+    counter = tmp_path / "runs.log"
+    step = _fake(tmp_path, f"open({str(counter)!r}, 'a').write('x')\nprint(open('input.txt').read())")
+    assert results.build(tmp_path, [step]) == 0  # missing -> built
+    table = (tmp_path / "results/table.md").read_text()
+    made_by = f"Made by `uv run {tmp_path}/fake_step.py > results/table.md` at commit"
+    assert table.splitlines()[0].startswith(made_by)
+    assert "v1" in table
+    assert results.build(tmp_path, [step]) == 0  # current -> not run
+    assert counter.read_text() == "x"
+    (tmp_path / "input.txt").write_text("v2\n")  # a changed input -> stale
+    assert results.build(tmp_path, [step]) == 0
+    assert counter.read_text() == "xx" and "v2" in (tmp_path / "results/table.md").read_text()
+    (tmp_path / "results/table.md").unlink()  # a deleted output -> rebuilt
+    assert results.build(tmp_path, [step]) == 0 and counter.read_text() == "xxx"
+    assert results.build(tmp_path, [step], force=True) == 0 and counter.read_text() == "xxxx"
+
+
+def test_a_step_whose_input_is_absent_keeps_its_table(tmp_path, capsys):
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results/table.md").write_text("kept\n")
+    step = Step(("results/table.md",), ("metrics.py",), ("rollouts/none",), stdout=True)
+    assert results.build(tmp_path, [step]) == 0
+    assert (tmp_path / "results/table.md").read_text() == "kept\n"
+    assert "cannot rebuild here" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["tabels"], ["--onyl", "x"]])
+def test_a_mistyped_command_line_is_one_error_line_and_exit_2(argv):
+    before = (ROOT / "results/README.md").read_bytes()
+    p = subprocess.run([sys.executable, "studies/results.py", *argv], cwd=ROOT,
+                       capture_output=True, text=True)
+    assert p.returncode == 2, p.stderr
+    assert p.stderr.startswith("error: ") and len(p.stderr.strip().splitlines()) == 1
+    assert p.stdout == ""
+    assert (ROOT / "results/README.md").read_bytes() == before
+
+
+def test_only_that_matches_nothing_is_a_user_error():
+    with pytest.raises(SystemExit) as exc:
+        results.main(["tables", "--only", "results/no_such/*", "--dry-run"])
+    assert exc.value.code == 2
