@@ -30,6 +30,7 @@ import json
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -242,6 +243,8 @@ def build(root: Path, steps: list[Step], force: bool = False, dry_run: bool = Fa
 @exit_on_user_error
 def main(argv: list[str] | None = None) -> int:
     args = parse_cli(Args, argv, description=__doc__, prog="studies/results.py")
+    # a kill ends the run through its finally blocks: the scratch folder goes, tables stay
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     rc = 0
     if args.section != "index":
         if args.section == "all" and not args.dry_run and not args.only:
