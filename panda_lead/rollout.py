@@ -19,6 +19,12 @@ Layout on disk: ``rollouts/<prefix>/seed_<NNNN>.npz``. Arrays, one row per contr
 |                 |        |        | optional: files written before it lack it (None)         |
 | meta            | ()     | str    | JSON: seed, shape, controller, model, duration, dt, env  |
 
+What a read checks (`load`, `load_prefix`), so that no number is computed on a file the repo
+did not write as it stands: every size before decompressing; the shapes above with one T;
+float arrays as floats and flags as bool; meta's seed, shape, dt and duration; at most
+duration / dt rows, ``t`` the end of each dt step; the target the meta's seed and shape give
+(trajectory.sample(seed, shape).at(t)); one file per seed, named by its meta's seed.
+
 Files are written atomically (temporary name, then ``os.replace``): an interrupted write never
 leaves a half file that a later command would trust.
 """
@@ -36,11 +42,13 @@ from pathlib import Path
 
 import numpy as np
 
+from . import trajectory
 from .atomicio import atomic_write
 from .config import MAX_EPISODE_STEPS
 from .errors import UserError
 from .seeds import MAX_SEED
 from .task import failure_of
+from .trajectory import SHAPES
 
 ROLLOUT_DIR = Path("rollouts")
 ARRAY_KEYS = (
@@ -213,6 +221,9 @@ def check_meta(meta: dict, path: Path) -> None:
         raise _damaged(path, f"meta seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
     if not isinstance(meta.get("shape"), str):
         raise _damaged(path, f"meta shape must be a name, got {meta.get('shape')!r}")
+    if meta["shape"] not in SHAPES:
+        raise _damaged(path, f"meta shape must be one of {', '.join(SHAPES)}, got "
+                       f"{meta['shape'][:40]!r}")
     for key in ("dt", "duration"):
         v = meta.get(key)
         if isinstance(v, bool) or not isinstance(v, int | float) or not (
@@ -221,8 +232,9 @@ def check_meta(meta: dict, path: Path) -> None:
 
 
 def check_arrays(fields: dict[str, np.ndarray], path: Path) -> None:
-    """Shapes (T,), (T, 3), (T, 7) with one T >= 1; numeric (flags: bool or integer) dtypes;
-    no finite value beyond LIMITS. RolloutError naming the file, the array and the step."""
+    """Shapes (T,), (T, 3), (T, 7) with one T >= 1; float dtypes, flags bool (an integer
+    ``ee_pos`` or a ``self_collision`` of 7 is no rollout this repo writes); no finite value
+    beyond LIMITS. RolloutError naming the file, the array and the step."""
     T = fields["t"].shape[0] if fields["t"].ndim == 1 else -1
     for key in (*ARRAY_KEYS, *(k for k in OPTIONAL_KEYS if k in fields)):
         a = fields[key]
@@ -231,10 +243,10 @@ def check_arrays(fields: dict[str, np.ndarray], path: Path) -> None:
             shown = "(T,)" if key not in COLUMNS else f"(T, {COLUMNS[key]})"
             raise _damaged(path, f"{key} has shape {a.shape}, expected {shown} with the same "
                            f"T >= 1 as t {fields['t'].shape}")
-        kinds = "biu" if key in FLAG_KEYS else "iuf"
-        if a.dtype.kind not in kinds:
+        kind = "b" if key in FLAG_KEYS else "f"
+        if a.dtype.kind != kind:
             raise _damaged(path, f"{key} has dtype {a.dtype}, expected "
-                           f"{'bool' if key in FLAG_KEYS else 'numbers'}")
+                           f"{'bool' if key in FLAG_KEYS else 'numbers (floating point)'}")
         if key in LIMITS:
             limit, words = LIMITS[key]
             with np.errstate(invalid="ignore"):
@@ -244,6 +256,51 @@ def check_arrays(fields: dict[str, np.ndarray], path: Path) -> None:
                 value = a.reshape(T, -1)[step][beyond.reshape(T, -1)[step]][0]
                 raise _damaged(path, f"{key} holds {value:g} at step {step}, beyond {limit:g} "
                                f"{words}")
+
+
+# How far a recorded time or target may sit from the one the meta implies: float rounding of
+# the physics clock (2,500 additions of the timestep in 5 s) is ~1e-13; a real mismatch (another
+# seed, another time base, an edited target) is millimetres or more.
+TIME_TOLERANCE_S = 1e-6
+TARGET_TOLERANCE = {"target_pos": 1e-6, "target_vel": 1e-5, "target_acc": 1e-3}
+
+
+def check_against_meta(fields: dict[str, np.ndarray], meta: dict, path: Path) -> None:
+    """The rows and times the meta promises, and the target of the meta's seed: at most
+    duration / dt rows (fewer only when the episode ended early: metrics charges those), ``t``
+    the end of each control step (k * dt), and target_pos/vel/acc the seed's trajectory
+    (trajectory.sample(seed, shape).at(t)), so a file cannot be scored over other times,
+    another seed's target, or a target moved onto the tip. The last row of a failed episode
+    is not checked (MuJoCo resets an unstable simulation's clock)."""
+    dt, duration = float(meta["dt"]), float(meta["duration"])
+    expected = int(round(duration / dt))
+    T = len(fields["t"])
+    if T > expected:
+        raise _damaged(path, f"{T} rows, but its meta says {duration:g} s at {dt:g} s = "
+                       f"{expected} steps")
+    n = T - 1 if meta.get("failure") else T
+    times = dt * np.arange(1, n + 1)
+    t = np.asarray(fields["t"][:n], dtype=float)
+    with np.errstate(invalid="ignore"):
+        off = np.isfinite(t) & (np.abs(t - times) > TIME_TOLERANCE_S)
+    if off.any():
+        k = int(np.argmax(off))
+        raise _damaged(path, f"t is {t[k]:g} s at step {k}, but step {k} of its meta's {dt:g} s "
+                       f"steps ends at {times[k]:g} s")
+    if n == 0:
+        return
+    want = dict(zip(("target_pos", "target_vel", "target_acc"),
+                    trajectory.sample(int(meta["seed"]), meta["shape"]).at(times), strict=True))
+    for key, tol in TARGET_TOLERANCE.items():
+        got = np.asarray(fields[key][:n], dtype=float)
+        with np.errstate(invalid="ignore"):
+            off = np.isfinite(got).all(axis=1) & (np.abs(got - want[key]).max(axis=1) > tol)
+        if off.any():
+            k = int(np.argmax(off))
+            raise _damaged(path, f"{key} at step {k} is not seed {meta['seed']}'s "
+                           f"{meta['shape']} trajectory (off by "
+                           f"{np.abs(got[k] - want[key][k]).max():.3g}); the file was edited "
+                           "or holds another seed's episode")
 
 
 def load(path: Path) -> Rollout:
@@ -267,6 +324,7 @@ def load(path: Path) -> Rollout:
                            "is damaged or truncated, write it again") from None
     check_meta(meta, path)
     check_arrays(fields, path)
+    check_against_meta(fields, meta, path)
     return Rollout(**fields, meta=meta)
 
 
@@ -299,8 +357,16 @@ def load_prefix(prefix: str, root: Path = ROLLOUT_DIR) -> dict[int, Rollout]:
         existing = list_prefixes(root)
         hint = ", ".join(existing) if existing else "none (run ikpd.py or eval.py with --prefix)"
         raise NoRollouts(f"no rollouts under {folder}/; prefixes that exist: {hint}")
-    rollouts = [load(f) for f in files]
-    return {r.seed: r for r in rollouts}
+    out: dict[int, Rollout] = {}
+    for f in files:
+        r = load(f)
+        # One file per seed, named by it: a file relabelled or copied under another name would
+        # otherwise replace (or be replaced by) the seed's own, silently.
+        if f.name != rollout_path(prefix, r.seed, root).name:
+            raise _damaged(f, f"its meta says seed {r.seed}, so it should be named "
+                           f"{rollout_path(prefix, r.seed, root).name}")
+        out[r.seed] = r
+    return out
 
 
 def iter_record(config, act_fn, seeds, shapes=None, meta: dict | None = None,

@@ -34,9 +34,11 @@ def run(*args, cwd, timeout=600):
 
 def a_rollout(seed: int, offset: float = 0.02) -> Rollout:
     t = 0.01 * np.arange(1, T + 1)
-    target = np.stack([0.3 * t, 0.5 + 0 * t, 0.2 * t], axis=1)
+    from panda_lead.trajectory import sample  # a file's target must be its seed's to load
+
+    target, vel, acc = sample(seed, "circle").at(t)
     return Rollout(t=t, ee_pos=target + [offset, 0, 0], target_pos=target,
-                   target_vel=np.zeros((T, 3)), target_acc=np.zeros((T, 3)),
+                   target_vel=vel, target_acc=acc,
                    lead=np.zeros((T, 3)), qpos=np.zeros((T, 7)), qvel=np.zeros((T, 7)),
                    self_collision=np.zeros(T, bool), collision_depth=np.zeros(T),
                    reachable=np.ones(T, bool),

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from conftest import one_line
 
-from panda_lead import models, rollout
+from panda_lead import models, rollout, trajectory
 from panda_lead.rollout import Rollout, RolloutError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,10 +38,11 @@ def run(*args, cwd, timeout=600, **kw):
 
 def good_rollout(seed: int = 0) -> Rollout:
     t = 0.01 * np.arange(1, T + 1)
-    target = np.stack([0.3 * t, 0.5 + 0 * t, 0.2 * t], axis=1)
+    # The seed's own target: a rollout file must hold it to load (rollout.check_against_meta).
+    target, vel, acc = trajectory.sample(seed, "circle").at(t)
     z3 = lambda: np.zeros((T, 3))  # noqa: E731  (one array each: a test edits one alone)
     return Rollout(t=t, ee_pos=target + [0.02, 0, 0], target_pos=target.copy(),
-                   target_vel=z3() + 0.3, target_acc=z3(), lead=z3(), qpos=np.zeros((T, 7)),
+                   target_vel=vel.copy(), target_acc=acc.copy(), lead=z3(), qpos=np.zeros((T, 7)),
                    qvel=np.zeros((T, 7)), self_collision=np.zeros(T, bool),
                    collision_depth=np.zeros(T), reachable=np.ones(T, bool),
                    meta={"seed": seed, "shape": "circle", "controller": "classical",

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from panda_lead import metrics, rollout
+from panda_lead import metrics, rollout, trajectory
 from panda_lead.cli import metrics as metrics_cli
 from panda_lead.errors import UserError
 from panda_lead.metrics import figures
@@ -40,6 +40,16 @@ def make_rollout(ee, target=None, seed=0, shape="circle", reachable=None, dt=DT,
         meta=dict(seed=seed, shape=shape, controller=controller, model="none",
                   duration=T * dt if duration is None else duration, dt=dt),
     )
+
+
+def on_its_trajectory(r):
+    """The rollout with the target its seed and shape give (trajectory.sample), the tip keeping
+    its offset from the target: what a rollout file must hold to load (a file's target is
+    checked against its seed's trajectory, rollout.check_against_meta)."""
+    pos, vel, acc = trajectory.sample(r.seed, r.shape).at(r.t)
+    r.ee_pos = pos + (np.asarray(r.ee_pos) - np.asarray(r.target_pos))
+    r.target_pos, r.target_vel, r.target_acc = pos, vel, acc
+    return r
 
 
 def offset_rollout(offset_m, T=100, **kw):
@@ -156,7 +166,7 @@ def test_compare_rejects_mismatched_duration_and_shape():
 def write_prefix(root, prefix, offset_m, seeds, T=100):
     for s in seeds:
         shape = "circle" if s % 2 == 0 else "fig8"
-        rollout.save(offset_rollout(offset_m, T=T, seed=s, shape=shape),
+        rollout.save(on_its_trajectory(offset_rollout(offset_m, T=T, seed=s, shape=shape)),
                      rollout.rollout_path(prefix, s, root))
 
 
@@ -451,7 +461,7 @@ def test_headline_bins_error_by_peak_speed():
 def test_cli_headline_three_sets(tmp_path):
     for label, prefix in (("Classical", "ikpd"), ("Analytic", "analytic"), ("RL+Lead", "eval")):
         for r in headline_sets()[label].values():
-            rollout.save(r, rollout.rollout_path(prefix, r.seed, tmp_path))
+            rollout.save(on_its_trajectory(r), rollout.rollout_path(prefix, r.seed, tmp_path))
     png = tmp_path / "head.png"
     p = run_cli("--root", str(tmp_path), "--headline", "ikpd", "analytic", "eval",
                 "--plot", str(png))
@@ -476,8 +486,9 @@ def test_cli_help_has_a_description():
 
 def test_cli_prints_claims_with_not_shown(tmp_path):
     for s in range(30):
-        rollout.save(offset_rollout(0.05, seed=s), rollout.rollout_path("base", s, tmp_path))
-        rollout.save(offset_rollout(0.04 if s < 25 else 0.15, seed=s),
+        rollout.save(on_its_trajectory(offset_rollout(0.05, seed=s)),
+                     rollout.rollout_path("base", s, tmp_path))
+        rollout.save(on_its_trajectory(offset_rollout(0.04 if s < 25 else 0.15, seed=s)),
                      rollout.rollout_path("new", s, tmp_path))
     p = run_cli("--root", str(tmp_path), "--prefix-a", "base", "--prefix-b", "new")
     assert p.returncode == 0, p.stderr
@@ -514,7 +525,8 @@ def test_cli_non_finite_and_failed_seeds_are_charged_and_named(root):
 def test_cli_names_each_set_by_its_controller_by_default(tmp_path):
     for prefix, controller in (("ikpd", "classical"), ("lead", "analytic"), ("mine", "policy")):
         for s in range(3):
-            rollout.save(offset_rollout(0.01, seed=s, shape="circle", controller=controller),
+            rollout.save(on_its_trajectory(offset_rollout(0.01, seed=s, shape="circle",
+                                                          controller=controller)),
                          rollout.rollout_path(prefix, s, tmp_path))
     p = run_cli("--root", str(tmp_path), "--prefix-a", "lead", "--prefix-b", "mine")
     assert p.returncode == 0, p.stderr

@@ -56,7 +56,11 @@ def plot_paired_differences(ax, cmp: Comparison, colour: str, key: str = "mean_e
     d = d[np.isfinite(d)]
     row = cmp.row(key)
     bins = int(np.clip(np.sqrt(len(d)) * 2, 10, 60))
-    ax.hist(d, bins=bins, color=colour, alpha=0.6, edgecolor="white", linewidth=0.5)
+    # Differences equal up to float rounding (the same offset on every seed): numpy cannot cut
+    # that range into bins, so draw them in a unit-wide range as it does for equal values.
+    lo, hi = (float(d.min()), float(d.max())) if len(d) else (0.0, 0.0)
+    span = (lo - 0.5, hi + 0.5) if hi - lo <= 1e-9 * max(1.0, abs(lo), abs(hi)) else None
+    ax.hist(d, bins=bins, range=span, color=colour, alpha=0.6, edgecolor="white", linewidth=0.5)
     ax.axvline(0, color="black", linewidth=1.2, label="zero (no difference)")
     ax.axvline(row.median_delta, color="black", linestyle="--",
                label=f"median {row.median_delta:+.2f} {fmt_ci(row.median_ci, '.2f')}")

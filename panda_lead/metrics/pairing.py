@@ -307,9 +307,7 @@ def seed_set_title(seeds: list[int], unit: str = "pairs") -> str:
 
 
 def load_set(prefix: str, root: Path) -> dict[int, Rollout]:
-    """rollout.load_prefix with its input errors (no such prefix, unreadable file) as
-    UserError; only those two, so anything else keeps its traceback."""
-    try:
-        return rollout.load_prefix(prefix, root)
-    except (FileNotFoundError, ValueError) as exc:
-        raise UserError(str(exc)) from exc
+    """rollout.load_prefix: its input errors (no such prefix, a damaged or inconsistent file)
+    are already UserErrors (NoRollouts, RolloutError); anything else is a bug and keeps its
+    traceback (no ValueError is turned into a user error here)."""
+    return rollout.load_prefix(prefix, root)
