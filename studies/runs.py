@@ -372,6 +372,35 @@ def rank(args: Args) -> None:
               f"{np.mean(c['test']['settled_err']):.2f} |")
 
 
+# The selection rule that does not wobble (issue 37, stated 2026-11-26; docs/training.md):
+# studies (or models) are ordered by their mean error on the selection set (seeds.SELECT_SEEDS,
+# sized from the measured per-trajectory spread to separate 0.05 cm; every study under the
+# same default evaluation env), and where two neighbours' paired 95% bootstrap CI of the
+# difference includes 0, the smoother one (lower mean tip jerk) ranks first.
+def tie_ranked(errors: dict[str, np.ndarray], jerks: dict[str, float], n_boot: int = 10000,
+               seed: int = 0) -> list[tuple[str, bool]]:
+    """Names in rank order by the rule above, each with whether it is tied (CI includes 0)
+    with the one ranked just above it. ``errors``: per-trajectory mean error (cm) on the same
+    trajectories, in the same order, for every name; ``jerks``: mean tip jerk per name. A swap
+    only ever moves the smoother of two tied neighbours up, so the loop ends."""
+    from panda_lead.metrics.stats import paired_ci
+
+    def tied(a: str, b: str) -> bool:
+        lo, hi = paired_ci(np.asarray(errors[b]) - np.asarray(errors[a]), n_boot, seed)
+        return bool(lo <= 0.0 <= hi)
+
+    order = sorted(errors, key=lambda k: (float(np.mean(errors[k])), k))
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(order) - 1):
+            a, b = order[i], order[i + 1]
+            if jerks[b] < jerks[a] and tied(a, b):
+                order[i], order[i + 1] = b, a
+                changed = True
+    return [(name, i > 0 and tied(order[i - 1], name)) for i, name in enumerate(order)]
+
+
 def curve(args: Args) -> None:
     """Evaluation-set error against training steps (log scale) for every seed of each study,
     from the committed summaries, with the classical and analytic references on the same
