@@ -15,8 +15,8 @@ from functools import cache
 from typing import Literal
 
 from . import trajectory
-from .core import N_JOINTS, IKConfig
 from .errors import UserError, check_typed_fields, did_you_mean
+from .ikconfig import N_JOINTS, IKConfig
 
 OBS_FEATURES = {
     "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
@@ -46,6 +46,13 @@ OBS_29 = OBS_15 + ("joint_pos", "joint_vel")
 DEFAULT_OBS = OBS_15
 REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", "alive",
                 "termination")
+
+
+def failure_of(info: dict, i: int, terminated: bool) -> str | None:
+    """Why episode i of a task step's ``info`` ended early (None if it did not): its label."""
+    if not terminated:
+        return None
+    return "unstable" if info["unstable"][i] else "self_collision"
 
 
 ACTIONS = {"lead": 3, "joint": N_JOINTS, "joint_target": N_JOINTS}

@@ -15,7 +15,7 @@ from gymnasium import spaces
 
 from .config import EnvConfig, arguments_table, as_config
 from .errors import UserError
-from .task import LeadTask
+from .task_one import LeadTaskOne as SingleTask  # the fast path; task.LeadTask: same episodes
 
 
 class EpisodeStepsSpec:
@@ -111,7 +111,7 @@ class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UserError(f"render_mode must be one of {self.metadata['render_modes']}, "
                             f"got {render_mode!r}")
-        self.task = LeadTask(self.cfg, 1, nthread=1)
+        self.task = SingleTask(self.cfg, 1, nthread=1)
         self.task.rngs[0] = self.np_random  # the env's own seeded generator drives slot 0
         self.core = self.task.core
         self.dt = self.task.dt

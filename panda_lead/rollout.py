@@ -44,10 +44,9 @@ import numpy as np
 
 from . import trajectory
 from .atomicio import atomic_write
-from .config import MAX_EPISODE_STEPS
+from .config import MAX_EPISODE_STEPS, failure_of
 from .errors import UserError
 from .seeds import MAX_SEED
-from .task import failure_of
 from .trajectory import SHAPES
 
 ROLLOUT_DIR = Path("rollouts")

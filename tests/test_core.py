@@ -1,4 +1,6 @@
-"""The IK+PD core: Jacobian, IK convergence, holding a pose, self-collision, reachability."""
+"""The IK+PD core: Jacobian, IK convergence, holding a pose, self-collision, reachability; the
+one-arm tests run on both implementations of one arm, the reference ArmBatch(1) and the
+single env's fast path core_one.ArmOne, which must be a row of a batch bit for bit."""
 
 import mujoco
 import numpy as np
@@ -7,7 +9,14 @@ import pytest
 from panda_lead.core import N_JOINTS, ArmBatch, IKConfig, home_qpos, load_model
 from panda_lead.trajectory import leaves_reach, reachable, sample
 
+try:
+    from panda_lead.core_one import ArmOne
+except ImportError:  # the fast path deleted (core_one.py says how): the reference alone
+    ArmOne = None
+
 HOME_QPOS = home_qpos()
+# The implementations of one arm: the reference (ArmBatch of one) and the fast path.
+ONE_ARM = [ArmBatch] + ([ArmOne] if ArmOne is not None else [])
 
 
 class StaticTarget:
@@ -25,9 +34,9 @@ class StaticTarget:
         return np.tile(self.pos, (n, 1)), np.zeros((n, 3)), np.zeros((n, 3))
 
 
-@pytest.fixture(scope="module")
-def core():
-    return ArmBatch(1, nthread=1)
+@pytest.fixture(scope="module", params=ONE_ARM, ids=lambda cls: cls.__name__)
+def core(request):
+    return request.param(1, nthread=1)
 
 
 def tip_at(core, q):
@@ -181,72 +190,107 @@ def test_home_pose_and_rates_come_from_the_mjcf():
 
 
 def test_stepping_before_a_target_path_is_a_clear_error():
-    with pytest.raises(RuntimeError, match="reset\\(trajs="):
-        ArmBatch(1, nthread=1).step()
+    for cls in ONE_ARM:
+        with pytest.raises(RuntimeError, match="reset\\(trajs="):
+            cls(1, nthread=1).step()
 
 
-def test_the_single_env_steps_the_lean_one_arm_path():
-    """The bit-for-bit tests of one arm (below, and tests/test_vector.py's single envs) go
-    through ArmBatch.step_one, the path the single env takes by default (docs/performance.md)."""
+@pytest.mark.skipif(ArmOne is None, reason="the fast path is deleted")
+def test_the_single_env_takes_the_fast_path():
+    """The single env runs task_one.LeadTaskOne on core_one.ArmOne, and a lead step goes
+    through their step_one (the Python-float route the tests here and in test_batched.py and
+    test_vector.py hold to the batch); settings it does not cover take the reference."""
     from panda_lead.env import PandaLeadEnv
+    from panda_lead.task_one import LeadTaskOne
 
-    assert ArmBatch(1, nthread=1).lean
-    assert not ArmBatch(2, nthread=1).lean
-    assert not ArmBatch(1, IKConfig(substep_ik=True), nthread=1).lean
-    assert not ArmBatch(1, IKConfig(clearance=0.02), nthread=1).lean  # it needs the batch
-    assert PandaLeadEnv().task._lean_lead
+    assert ArmOne(1).lean and not ArmOne(1, IKConfig(substep_ik=True)).lean
+    with pytest.raises(ValueError, match="clearance"):
+        ArmOne(1, IKConfig(clearance=0.02))
+    with pytest.raises(ValueError, match="ArmBatch"):
+        ArmOne(2)
+    env = PandaLeadEnv()
+    assert type(env.task) is LeadTaskOne and type(env.core) is ArmOne and env.task._lean_lead
     assert not PandaLeadEnv(action_delay=1).task._lean_lead
+    assert not PandaLeadEnv(action="joint").task._lean_lead
+    assert type(PandaLeadEnv(ik={"clearance": 0.02}).core) is ArmBatch  # it needs the batch
+    env.reset(seed=0)
+    calls = []
+    env.core.step_one = lambda lead: calls.append(lead) or (False, 0.0, False)
+    env.step(np.zeros(3, np.float32))
+    assert calls == [[0.0, 0.0, 0.0]]
 
 
-@pytest.mark.parametrize("ik", [IKConfig(), IKConfig(iters=2), IKConfig(nullspace_gain=0.0),
-                                IKConfig(max_step=0.01)])
-def test_one_arm_core_is_a_row_of_a_batch_bit_for_bit(ik):
-    """ArmBatch(1) (the single env) steps one plain MjData and does the IK's elementwise
-    maths on Python floats; its arm is the same arm as a row of a batch of several, bit for
-    bit: state, Jacobian-driven goals, flags, warnings, including an arm MuJoCo finds unstable
-    (its warning counters stop the remaining substeps, as Batch.rollout does)."""
+# Every route of one arm's step: IK iterations from the measured angles and beyond, no posture
+# pull, the step cap, the IK before every substep, and (below) joint offsets and joint goals.
+ONE_ARM_IKS = [IKConfig(), IKConfig(iters=2), IKConfig(nullspace_gain=0.0),
+               IKConfig(max_step=0.01), IKConfig(substep_ik=True), IKConfig(clearance=0.02)]
+
+
+@pytest.mark.parametrize("ik", ONE_ARM_IKS, ids=lambda ik: repr(ik)[9:-1])
+@pytest.mark.parametrize("cls", ONE_ARM, ids=lambda cls: cls.__name__)
+def test_one_arm_is_a_row_of_a_batch_bit_for_bit(cls, ik):
+    """One arm (ArmBatch(1), the reference, and ArmOne, which steps one plain MjData and does
+    the IK's elementwise maths on Python floats) is the same arm as a row of a batch of
+    several, bit for bit: state, Jacobian-driven goals, flags, warnings, with a lead, joint
+    offsets and joint goals, including an arm MuJoCo finds unstable (its warning counters stop
+    the remaining substeps, as Batch.rollout does)."""
     from panda_lead import trajectory
 
+    if cls is ArmOne and ik.clearance:
+        with pytest.raises(ValueError, match="clearance"):
+            cls(1, ik)
+        return
     rng = np.random.default_rng(7)
     trajs = [trajectory.sample(s) for s in (4, 5, 6)]
-    one, many = ArmBatch(1, ik, nthread=1), ArmBatch(3, ik, nthread=1)
+    one, many = cls(1, ik, nthread=1), ArmBatch(3, ik, nthread=1)
     one.reset(trajs=trajs[1:2], n_steps=40)
     many.reset(trajs=trajs, n_steps=40)
     for t in range(40):
         lead = rng.uniform(-0.15, 0.15, (3, 3))
         offset = rng.uniform(-0.1, 0.1, (3, N_JOINTS)) if t % 3 == 0 else None
+        goal = HOME_QPOS + rng.uniform(-0.2, 0.2, (3, N_JOINTS)) if t % 7 == 5 else None
         if t == 25:  # blow arm 1 up
             one.qvel[0, 2] = many.qvel[1, 2] = 1e12
-        one.step(lead[1:2], None if offset is None else offset[1:2])
-        many.step(lead, offset)
+        if goal is not None:
+            one.step(joint_goal=goal[1:2])
+            many.step(joint_goal=goal)
+        else:
+            one.step(lead[1:2], None if offset is None else offset[1:2])
+            many.step(lead, offset)
         for a, b in ((one.qpos, many.qpos), (one.qvel, many.qvel), (one.tip_pos, many.tip_pos),
                      (one.q_goal, many.q_goal), (one.self_collision, many.self_collision),
                      (one.collision_depth, many.collision_depth),
                      (one.floor_contact, many.floor_contact), (one.unstable, many.unstable),
                      (one.warning_counts(), many.warning_counts())):
+            assert a.shape[1:] == b.shape[1:] and a.dtype == b.dtype
             assert np.array_equal(a[0], b[1]), t
         assert many.unstable[1] == (t == 25)
+        for a, b in zip(one.target(), many.target(), strict=True):
+            assert np.array_equal(a[0], b[1])
     target = many.target()[0]
     q0 = HOME_QPOS + rng.uniform(-0.5, 0.5, N_JOINTS)
     assert np.array_equal(one.ik(target[1:2], q0=q0, iters=20)[0],
                           many.ik(target, q0=q0, iters=20)[1])
     data = one.get_data(0)
-    assert np.array_equal(data.qpos[:N_JOINTS], one.qpos[0]) and data is not one._data
+    assert np.array_equal(data.qpos[:N_JOINTS], one.qpos[0])
+    data.qpos[0] += 1.0  # a copy: the arm is untouched
+    assert not np.array_equal(data.qpos[:N_JOINTS], one.qpos[0])
 
 
-def test_one_arm_contacts_come_from_the_sensor_history_as_from_a_read_after_each_substep():
-    """The single env's step runs its substeps in one mj_step call and reads each substep's
-    contact sensors from MuJoCo's sensor history (core._substeps_one): its flags are those of
-    a loop of mj_step reading the sensors after every substep, also after an arm MuJoCo
-    reset mid-step (the history's ring then starts elsewhere) and while it touches itself
-    and the floor."""
+@pytest.mark.parametrize("cls", ONE_ARM, ids=lambda cls: cls.__name__)
+def test_one_arm_contacts_come_from_the_sensor_history_as_from_a_read_after_each_substep(cls):
+    """The single env's step (ArmOne) runs its substeps in one mj_step call and reads each
+    substep's contact sensors from MuJoCo's sensor history (core_one._substeps_one): its flags
+    are those of a loop of mj_step reading the sensors after every substep, also after an arm
+    MuJoCo reset mid-step (the history's ring then starts elsewhere) and while it touches
+    itself and the floor; as the reference's (ArmBatch(1), Batch.rollout's records) are."""
     m = load_model()
     rng = np.random.default_rng(3)
     start = np.clip(HOME_QPOS + rng.uniform(-1.5, 1.5, N_JOINTS), m.jnt_range[:N_JOINTS, 0],
                     m.jnt_range[:N_JOINTS, 1])
     target = StaticTarget(rng.uniform([-0.3, -0.6, -0.1], [0.9, 0.6, 0.9]))
-    one = ArmBatch(1, nthread=1)
-    assert one.lean and one._history_rows
+    one = cls(1, nthread=1)
+    assert cls is ArmBatch or (one.lean and one._history_rows)
     one.reset(trajs=[target], n_steps=80, qpos=start[None])
     d = one.get_data(0)
     seen = {"self": 0, "floor": 0}

@@ -391,38 +391,3 @@ def test_sb3_vec_env_reports_episode_statistics_as_vecmonitor():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
     assert int(out[0]) >= 2 and out[1] == "5"
-
-
-@pytest.mark.parametrize("name", ["default", "weights"])
-def test_the_single_envs_deferred_arrays_are_the_batchs(name):
-    """The single env's step (LeadTask.step_one, ArmBatch.step_one) leaves the task's
-    prev_action, lead, ee_vel and last tip position, and the core's flags and q_goal, to be
-    made when first read (core._Deferred): read after any step, or only after some, or across
-    a reset, they are a batch's rows bit for bit, fresh arrays each step as the batch's."""
-    from panda_lead.task import LeadTask
-
-    config = EnvConfig(**{"episode_steps": STEPS, **CONFIGS[name]})
-    one, many = LeadTask(config, 1, nthread=1), LeadTask(config, 3, nthread=1)
-    rng = np.random.default_rng(3)
-    for episode in range(2):
-        one.reset([0], [11 + episode])
-        many.reset(None, [10, 11 + episode, 12])
-        for t in range(STEPS):
-            actions = rng.uniform(-1.2, 1.2, (3, 3))
-            one.step_one(actions[1].astype(np.float32))
-            many.step(actions.astype(np.float32))
-            if (t + episode) % 3:  # some steps are never read
-                continue
-            held, values = one.lead, one.lead.copy()
-            for a, b in ((one.prev_action, many.prev_action), (one.lead, many.lead),
-                         (one.ee_vel, many.ee_vel), (one._prev_ee, many._prev_ee),
-                         (one.core.q_goal, many.core.q_goal),
-                         (one.core.self_collision, many.core.self_collision),
-                         (one.core.collision_depth, many.core.collision_depth),
-                         (one.core.floor_contact, many.core.floor_contact),
-                         (one.core.unstable, many.core.unstable)):
-                assert a.dtype == b.dtype and a.shape[1:] == b.shape[1:]
-                assert np.array_equal(a[0], b[1]), (episode, t)
-            assert one.lead is held  # made once, then kept until the next step
-    one.step_one(np.ones(3, np.float32))
-    assert one.lead is not held and np.array_equal(held, values)  # a step leaves it as it was
