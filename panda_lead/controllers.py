@@ -83,3 +83,113 @@ def _numpy_actor(model):
         else:
             raise ValueError(f"no numpy actor for layer {module}")
     return [tuple(layer) for layer in layers]
+
+
+# --- The analytic lead as a good engineer would deploy it (issue 36) ---------------------------
+# Under noise it filters its inputs; under latency it predicts through the delay. Both read
+# what an engineer knows of the installation (the sensors' noise, the measured latency) from
+# the env's config, never the true target.
+
+# Tuned on seeds.TUNE_SEEDS at 1 cm of noise with `uv run studies/deploy.py --tune-filter`.
+DEFAULT_JERK_PSD = 1e3  # (m/s^3)^2 s: the white-jerk process noise of the target model
+
+
+def steady_state_gain(dt: float, r_std: np.ndarray, jerk_psd: float) -> np.ndarray:
+    """The steady-state Kalman gain (3 x 3) of a constant-acceleration model of one axis,
+    state (position, velocity, acceleration), measured directly with standard deviations
+    ``r_std`` (m, m/s, m/s^2): the Riccati recursion iterated to its fixed point."""
+    f = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    # white jerk of spectral density q integrated over one step (the discrete Wiener model)
+    q = jerk_psd * np.array([[dt ** 5 / 20, dt ** 4 / 8, dt ** 3 / 6],
+                             [dt ** 4 / 8, dt ** 3 / 3, dt ** 2 / 2],
+                             [dt ** 3 / 6, dt ** 2 / 2, dt]])
+    r = np.diag(np.maximum(np.asarray(r_std, float), 1e-9) ** 2)
+    p = np.eye(3)
+    for _ in range(2000):
+        prior = f @ p @ f.T + q
+        gain = prior @ np.linalg.inv(prior + r)
+        p = (np.eye(3) - gain) @ prior
+    return gain
+
+
+def make_filtered_analytic(tau: float = DEFAULT_TAU, jerk_psd: float = DEFAULT_JERK_PSD):
+    """The analytic lead from a Kalman estimate of the target's velocity and acceleration, fed
+    the observed (noisy) target position, velocity and acceleration. Without noise the gain is
+    the identity to within 1e-6 and this is the analytic lead."""
+    state: dict = {}
+
+    def act(obs, task) -> np.ndarray:
+        max_lead = task.config.max_lead
+        if task.config.action != "lead":
+            raise ValueError("the analytic lead is a Cartesian lead: it needs action 'lead'")
+        slices = {f: slice(a, b) for f, a, b in task.layout}
+        missing = {"target_pos", "target_vel", "target_acc"} - set(slices)
+        if missing:
+            raise ValueError(f"the filtered analytic lead observes {sorted(missing)}")
+        z = np.stack([obs[:, slices[f]] * OBS_SCALE[f]
+                      for f in ("target_pos", "target_vel", "target_acc")], axis=1)  # (N, 3, 3)
+        z = np.asarray(z, float)
+        noise = task.config.obs_noise
+        key = (task.dt, tuple(noise.get(f, 0.0) for f in ("target_pos", "target_vel",
+                                                          "target_acc")))
+        if state.get("key") != key:
+            state["key"], state["gain"] = key, steady_state_gain(task.dt, key[1], jerk_psd)
+        first = np.asarray(task.core.time) <= 0.5 * task.dt  # a fresh episode: start from z
+        x = state.get("x")
+        if x is None or x.shape != z.shape:
+            x = z.copy()
+        else:
+            f = np.array([[1.0, task.dt, task.dt ** 2 / 2], [0.0, 1.0, task.dt], [0, 0, 1.0]])
+            prior = np.einsum("ij,njk->nik", f, x)
+            x = prior + np.einsum("ij,njk->nik", state["gain"], z - prior)
+            x[first] = z[first]
+        state["x"] = x
+        if max_lead == 0:
+            return classical(obs, task)
+        lead = analytic_lead(x[:, 1], x[:, 2], tau, max_lead)
+        return (lead / max_lead).astype(np.float32)
+
+    return act
+
+
+def make_predicting_analytic(tau: float = DEFAULT_TAU):
+    """The analytic lead that predicts through a known latency: what it observes is
+    obs_delay steps old and its lead lands action_delay steps late, so it extrapolates the
+    target's velocity by the acceleration over both (v + a d) before leading by tau."""
+    def act(obs, task) -> np.ndarray:
+        max_lead = task.config.max_lead
+        if max_lead == 0:
+            return classical(obs, task)
+        slices = {f: slice(a, b) for f, a, b in task.layout}
+        vel = np.asarray(obs[:, slices["target_vel"]] * OBS_SCALE["target_vel"], float)
+        acc = np.asarray(obs[:, slices["target_acc"]] * OBS_SCALE["target_acc"], float)
+        delay = (np.asarray(task.obs_delay) + np.asarray(task.action_delay)) * task.dt
+        lead = analytic_lead(vel + acc * delay[:, None], acc, tau, max_lead)
+        return (lead / max_lead).astype(np.float32)
+
+    return act
+
+
+# --- preview rivals: classical controllers that know the planned path (issue 37) ------------
+# They read each arm's target path ahead from its trajectory (panda_lead/preview.py); settings
+# tuned on seeds.TUNE_SEEDS with `uv run studies/preview_rivals.py`
+# (results/studies/preview/rivals_tuning.md), never on the test seeds.
+PREVIEW_RIVALS = ("future_target", "feedforward")
+FUTURE_TAU = 0.04
+FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.01, 1.0, 0.01
+
+
+def make_future_target(tau: float = FUTURE_TAU):
+    """The IK aimed at the exact future target p(t + tau): a Cartesian lead."""
+    from .preview import make_future_target as make
+
+    return make(tau)
+
+
+def make_feedforward(tau: float = FEEDFORWARD_TAU, gain: float = FEEDFORWARD_GAIN,
+                     tau_ik: float | None = FEEDFORWARD_TAU_IK):
+    """Joint goals that invert the simulated servos on the planned joint path (action
+    joint_target): see preview.make_feedforward."""
+    from .preview import make_feedforward as make
+
+    return make(tau, gain, tau_ik)

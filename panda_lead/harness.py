@@ -26,7 +26,7 @@ from .errors import UserError, did_you_mean
 from .ilc import ILCConfig, learn_leads, oracle_meta, replay_controller
 from .rollout import identity, iter_record, read_meta, rollout_path, save
 
-CONTROLLERS = ("policy", "classical", "analytic", "ilc")
+CONTROLLERS = ("policy", "classical", "analytic", "ilc", *controllers.PREVIEW_RIVALS)
 # Settings that only shape training; an evaluation starts from none of them.
 TRAINING_ONLY = {"obs_noise": {}, "obs_delay": 0, "action_delay": 0, "random_delay": False,
                  "terminate_on_collision": False, "max_peak_speed": None, "shapes": None}
@@ -117,6 +117,16 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
         tau = controllers.DEFAULT_TAU if tau is None else tau
         meta["tau"] = tau
         return Controller(name, config, meta, controllers.make_analytic(tau), dropped=dropped)
+    if name == "future_target":  # the preview rivals know the planned path (issue 37)
+        meta["tau"] = controllers.FUTURE_TAU if tau is None else tau
+        return Controller(name, config, {**meta, "knows_path": True},
+                          controllers.make_future_target(meta["tau"]), dropped=dropped)
+    if name == "feedforward":
+        meta["tau"] = controllers.FEEDFORWARD_TAU if tau is None else tau
+        meta.update(knows_path=True, gain=controllers.FEEDFORWARD_GAIN,
+                    tau_ik=controllers.FEEDFORWARD_TAU_IK)
+        return Controller(name, config.replace(action="joint_target"), meta,
+                          controllers.make_feedforward(meta["tau"]), dropped=dropped)
     ilc = ilc or ILCConfig()
     starts = {"analytic": controllers.make_analytic(controllers.DEFAULT_TAU),
               "zero": controllers.classical}

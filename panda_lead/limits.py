@@ -162,12 +162,13 @@ class Check:
 def command_stream(q_goal: np.ndarray, dt: float, q_start: np.ndarray | None = None,
                    method: str = "cubic", filtered: bool = True,
                    robot_dt: float = ROBOT_DT) -> np.ndarray:
-    """The 1 kHz joint command a real Panda would receive for 100 Hz goals ``q_goal`` (T, 7):
-    the arm at rest at ``q_start`` (default q_goal[0]) for two control periods, then the goals,
-    interpolated and (by default) low-passed as libfranka does."""
+    """The 1 kHz joint command a real Panda would receive for 100 Hz goals ``q_goal`` (T, 7),
+    or for several episodes at once (T, N, 7): the arm at rest at ``q_start`` (default the
+    first goal) for two control periods, then the goals, interpolated and (by default)
+    low-passed as libfranka does."""
     q_goal = np.asarray(q_goal, dtype=float)
-    start = q_goal[0] if q_start is None else np.asarray(q_start, dtype=float)
-    knots = np.vstack([start, start, q_goal])  # at rest: the spline starts with no velocity
+    start = q_goal[0] if q_start is None else np.broadcast_to(q_start, q_goal[0].shape)
+    knots = np.concatenate([start[None], start[None], q_goal])  # at rest: no velocity yet
     stream = upsample(knots, dt, method, robot_dt)
     return lowpass(stream, robot_dt) if filtered else stream
 
@@ -175,25 +176,42 @@ def command_stream(q_goal: np.ndarray, dt: float, q_start: np.ndarray | None = N
 def check(q_goal: np.ndarray, dt: float, q_start: np.ndarray | None = None,
           method: str = "cubic", filtered: bool = True, skip: float = 0.0,
           robot_dt: float = ROBOT_DT) -> Check:
-    """Check the 100 Hz joint goals of one episode against the Panda's limits.
+    """Check the 100 Hz joint goals of one episode (T, 7) against the Panda's limits.
 
     ``skip`` seconds of the stream (counted from the first goal) are left out of the peaks: the
     swing from the home pose to a target far away is a motion a real deployment plans on its
     own (a move-to-start), not the tracking controller's."""
-    stream = command_stream(q_goal, dt, q_start, method, filtered, robot_dt)
+    return check_many(np.asarray(q_goal)[None], dt, q_start, method, filtered, skip,
+                      robot_dt)[0]
+
+
+def check_many(q_goals: np.ndarray, dt: float, q_start: np.ndarray | None = None,
+               method: str = "cubic", filtered: bool = True, skip: float = 0.0,
+               robot_dt: float = ROBOT_DT) -> list[Check]:
+    """``check`` for N episodes of equal length at once, (N, T, 7): one pass of the filter's
+    time loop for all of them."""
+    q = np.moveaxis(np.asarray(q_goals, dtype=float), 0, 1)  # (T, N, 7)
+    stream = command_stream(q, dt, q_start, method, filtered, robot_dt)
     first = int(round((2 * dt + skip) / robot_dt))  # two rest periods precede the first goal
-    margins: dict[str, float] = {}
-    vel, acc, jerk = derivatives(stream, robot_dt)
+    n = q.shape[1]
+    margins: list[dict[str, float]] = [{} for _ in range(n)]
+    vel, acc, jerk = (v[first:] for v in derivatives(stream, robot_dt))
     for name, values, limits in (("velocity", vel, JOINT_VEL), ("acceleration", acc, JOINT_ACC),
                                  ("jerk", jerk, JOINT_JERK)):
-        peak = np.abs(values[first:]).max(axis=0) if len(values) > first else np.zeros(7)
-        for j in range(7):
-            margins[f"joint {j + 1} {name}"] = float(peak[j] / limits[j])
-    tip = tip_positions(stream)
-    for name, values, limit in zip(("velocity", "acceleration", "jerk"),
-                                   derivatives(tip, robot_dt), (TIP_VEL, TIP_ACC, TIP_JERK),
-                                   strict=True):
-        norm = np.linalg.norm(values[first:], axis=1)
-        margins[f"tip {name}"] = float(norm.max() / limit) if len(norm) else 0.0
-    worst = max(margins, key=margins.get)
-    return Check(bool(margins[worst] <= 1.0), margins[worst], worst, margins)
+        peak = np.abs(values).max(axis=0) / limits if len(values) else np.zeros((n, 7))
+        for i in range(n):
+            for j in range(7):
+                margins[i][f"joint {j + 1} {name}"] = float(peak[i, j])
+    del vel, acc, jerk
+    for i in range(n):
+        tip = tip_positions(stream[:, i])
+        for name, values, limit in zip(("velocity", "acceleration", "jerk"),
+                                       derivatives(tip, robot_dt), (TIP_VEL, TIP_ACC, TIP_JERK),
+                                       strict=True):
+            norm = np.linalg.norm(values[first:], axis=1)
+            margins[i][f"tip {name}"] = float(norm.max() / limit) if len(norm) else 0.0
+    out = []
+    for m in margins:
+        worst = max(m, key=m.get)
+        out.append(Check(bool(m[worst] <= 1.0), m[worst], worst, m))
+    return out

@@ -19,17 +19,18 @@ torch's MKL to SSE4.2 does not bring them back.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import json
 import math
+import signal
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from panda_lead.errors import UserError, check_plain_name, exit_on_user_error, parse_cli
+from panda_lead.errors import UserError, check_plain_name, exit_on_user_error, parse_cli, printable
+from panda_lead.summaries import check_curve_points, read_json
 
 RUNS_DIR = Path("results/runs")
-MAX_SUMMARY_BYTES = 8 << 20  # a summary is ~100 kB (1,000 test trajectories x 3 metrics)
 
 
 @dataclass
@@ -49,22 +50,34 @@ def load_summary(study: str, seed: int) -> dict:
     path = RUNS_DIR / check_plain_name(study, "--study") / f"seed_{seed}.json"
     if not path.is_file():
         raise UserError(f"no summary {path} (see `ls {RUNS_DIR / study}`)")
-    if path.stat().st_size > MAX_SUMMARY_BYTES:
-        raise UserError(f"{path}: {path.stat().st_size} bytes, not a run summary")
-    try:
-        summary = json.loads(path.read_text())
-        config, curve = summary["train_config"], summary["eval_curve"]
-        if not isinstance(config, dict):
-            raise TypeError("train_config is not an object")
-        points = [(int(s), float(e)) for s, e in curve]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise UserError(f"{path}: not a run summary ({exc})") from None
+    summary = read_json(path, "a run summary")  # bounded; no NaN, no deep nesting
+    config = summary.get("train_config") if isinstance(summary, dict) else None
+    if not isinstance(config, dict):
+        raise UserError(f"{path}: not a run summary (train_config is not an object)")
     if config.get("seed") != seed:
-        raise UserError(f"{path}: its train_config has seed {config.get('seed')!r}, not {seed}")
+        raise UserError(f"{path}: its train_config has seed {printable(config.get('seed'), 40)}, "
+                        f"not {seed}")
+    points = check_curve_points(summary.get("eval_curve"), path)
+    _train_config(config, path)  # every value checked before the rerun starts
     cpu = summary.get("cpu")  # summaries before 2026-11-25 do not name it
-    cpu = cpu[:200] if isinstance(cpu, str) and cpu else None
-    return {"path": path, "config": config, "curve": points, "commit": summary.get("commit"),
-            "cpu": cpu}
+    cpu = printable(cpu) if isinstance(cpu, str) and cpu else None
+    commit = summary.get("commit")
+    return {"path": path, "config": config, "curve": points,
+            "commit": printable(commit, 80) if commit is not None else None, "cpu": cpu}
+
+
+def _train_config(config: dict, path: Path):
+    """The summary's training config as TrainConfig, any bad value as one line naming the file
+    (a wrong type, e.g. net_arch 5 or curriculum_start_speed "fast", is a TypeError there)."""
+    from panda_lead.training.config import TrainConfig
+
+    try:
+        return TrainConfig.from_dict(config)
+    except UserError as exc:
+        raise UserError(f"{path}: train_config: {exc}") from None
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:
+        raise UserError(f"{path}: train_config is not a training config "
+                        f"({printable(exc, 120)})") from None
 
 
 def rerun_curve(config: dict, evals: int, runs_dir: Path) -> list[tuple[int, float]]:
@@ -74,7 +87,7 @@ def rerun_curve(config: dict, evals: int, runs_dir: Path) -> list[tuple[int, flo
     from panda_lead.training.config import TrainArgs, TrainConfig
     from panda_lead.training.evaluation import eval_curve
 
-    trained = TrainConfig.from_dict(config)
+    trained = TrainConfig.from_dict(config)  # load_summary checked it
     if not trained.eval_freq:
         raise UserError("the run never evaluated (eval_freq 0): there is no curve to compare")
     fields = {f.name: getattr(trained, f.name) for f in dataclasses.fields(TrainConfig)}
@@ -103,6 +116,23 @@ def compare(recorded: list[tuple[int, float]], rerun: list[tuple[int, float]]) -
     return "\n".join(lines), same
 
 
+class _Terminated(BaseException):  # not swallowed by an `except Exception`
+    """SIGTERM, raised where the process is, so the temporary run folder is removed on the way
+    out (the default action would kill the process and leave rederive_* behind)."""
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds():
+    def handle(signum, frame):
+        raise _Terminated
+
+    old = signal.signal(signal.SIGTERM, handle)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def main(args: Args) -> int:
     if args.evals < 1:
         raise UserError(f"--evals must be at least 1, got {args.evals}")
@@ -111,16 +141,26 @@ def main(args: Args) -> int:
         raise UserError(f"{summary['path']} holds {len(summary['curve'])} evaluations, "
                         f"fewer than --evals {args.evals}")
     from panda_lead.models import cpu_name
+    from panda_lead.training import TrainingInterrupted
 
     here = cpu_name()
     print(f"re-deriving {summary['path']} (trained at commit {summary['commit']}, on "
           f"{summary['cpu'] or 'a CPU it does not name'}; this CPU: {here}): "
           f"{args.evals} evaluation(s)", flush=True)
-    if args.keep_run:
-        rerun = rerun_curve(summary["config"], args.evals, Path("runs/rederive"))
-    else:
-        with tempfile.TemporaryDirectory(prefix="rederive_") as tmp:
-            rerun = rerun_curve(summary["config"], args.evals, Path(tmp))
+    try:
+        with _sigterm_unwinds():
+            if args.keep_run:
+                rerun = rerun_curve(summary["config"], args.evals, Path("runs/rederive"))
+            else:
+                with tempfile.TemporaryDirectory(prefix="rederive_") as tmp:
+                    rerun = rerun_curve(summary["config"], args.evals, Path(tmp))
+    except (TrainingInterrupted, _Terminated, KeyboardInterrupt) as exc:
+        signum = getattr(exc, "signum", signal.SIGTERM if isinstance(exc, _Terminated)
+                         else signal.SIGINT)
+        where = ("its run folder is under runs/rederive/" if args.keep_run else
+                 "its run folder was temporary and is deleted, so there is nothing to resume")
+        print(f"interrupted: nothing re-derived ({where}); run rederive.py again", flush=True)
+        return 128 + int(signum)
     if not args.keep_run:
         print("(the rerun's folder above was temporary and is gone: --keep-run keeps it)")
     table, same = compare(summary["curve"][:args.evals], rerun[:args.evals])

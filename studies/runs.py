@@ -43,7 +43,15 @@ from typing import Literal
 import numpy as np
 import tyro
 
-from panda_lead.errors import UserError, check_plain_name, exit_on_user_error, parse_cli
+from panda_lead.errors import (
+    UserError,
+    check_output,
+    check_plain_name,
+    exit_on_user_error,
+    parse_cli,
+    printable,
+)
+from panda_lead.summaries import check_test_lists, read_json, read_summary
 
 RUNS_DIR = Path("results/runs")
 TEST = "0-999"
@@ -104,17 +112,45 @@ def _metrics_on_test(ctrl) -> dict[str, list[float]]:
     return out
 
 
+def _run_best(run: Path, side: dict) -> dict:
+    """The run's best evaluation, from the best model's own sidecar (bound to the model by its
+    hash), as best.json holds it; best.json is read only for a model saved without it."""
+    from panda_lead.summaries import CHECKS
+
+    metrics = side.get("eval_metrics")
+    if isinstance(metrics, dict):
+        best, source = {"timesteps": side.get("timesteps"), **metrics}, run / "best_model.json"
+    else:
+        source = run / "best.json"
+        best = read_json(source, "a run's best.json", limit=1 << 20)
+    CHECKS["best"]({"best": best}, source)
+    return best
+
+
+def _run_curve(run: Path) -> list[list[float]]:
+    """The run's evaluation curve (tb/progress.csv), its damage as one line."""
+    from panda_lead.training.evaluation import eval_curve
+
+    try:
+        curve = eval_curve(run)
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, OverflowError) as exc:
+        raise UserError(f"{run / 'tb' / 'progress.csv'}: not a readable training log "
+                        f"({printable(exc, 120)})") from None
+    if any(not all(map(np.isfinite, point)) for point in curve):
+        raise UserError(f"{run / 'tb' / 'progress.csv'}: an evaluation row is not finite")
+    return curve
+
+
 def summarize(args: Args) -> None:
     from panda_lead import harness
-    from panda_lead.atomicio import atomic_write
+    from panda_lead.atomicio import atomic_write, folder_lock
     from panda_lead.models import upgrade_legacy, verify
-    from panda_lead.training.evaluation import eval_curve
 
     if not args.runs:
         raise UserError("summarize needs run folders: --runs sweeps/NAME/runs/*/")
     out_dir = RUNS_DIR / check_plain_name(args.study, "--study")
-    for run in args.runs:
-        run = Path(run)
+    todo = []  # every run checked before the first is evaluated (each takes minutes)
+    for run in map(Path, args.runs):
         best, final = run / "best_model.zip", run / "final_model.zip"
         if not best.is_file() or not final.is_file():
             raise UserError(f"{run}: not a finished run folder (no best_model.zip/final_model.zip)")
@@ -123,21 +159,26 @@ def summarize(args: Args) -> None:
         side, last = verify(best), verify(final)
         config = side["train_config"]
         path = out_dir / f"seed_{config['seed']}.json"
-        if path.exists() and not args.force:
-            print(f"{path} exists (add --force to redo it)")
-            continue
-        ctrl = harness.build("policy", 500, best)
-        summary = {"study": args.study, "run": run.name, "preset": config.get("preset"),
-                   "seed": config["seed"], "train_config": config, "commit": side.get("commit"),
-                   "cpu": side.get("cpu"),
-                   "timesteps": last["timesteps"], "wall_time_s": last.get("wall_time_s"),
-                   "eval_curve": eval_curve(run),
-                   "best": json.loads((run / "best.json").read_text()),
-                   "best_model_sha256": side["model_sha256"], "test_seeds": TEST,
-                   "test": _metrics_on_test(ctrl)}
-        with atomic_write(path, ".tmp.json") as tmp:
-            Path(tmp).write_text(json.dumps(summary, indent=1) + "\n")
-        print(f"wrote {path}: test mean error {np.mean(summary['test']['mean_err']):.3f} cm")
+        if any(path == p for *_, p in todo):
+            raise UserError(f"two of --runs are training seed {config['seed']}")
+        todo.append((run, side, last, _run_best(run, side), _run_curve(run), path))
+    with folder_lock(out_dir, f"the study {args.study}'s summaries"):
+        for run, side, last, best, curve, path in todo:
+            if path.exists() and not args.force:
+                print(f"{path} exists (add --force to redo it)")
+                continue
+            config = side["train_config"]
+            ctrl = harness.build("policy", 500, run / "best_model.zip")
+            summary = {"study": args.study, "run": run.name, "preset": config.get("preset"),
+                       "seed": config["seed"], "train_config": config,
+                       "commit": side.get("commit"), "cpu": side.get("cpu"),
+                       "timesteps": last["timesteps"], "wall_time_s": last.get("wall_time_s"),
+                       "eval_curve": curve, "best": best,
+                       "best_model_sha256": side["model_sha256"], "test_seeds": TEST,
+                       "test": _metrics_on_test(ctrl)}
+            with atomic_write(path, ".tmp.json") as tmp:
+                Path(tmp).write_text(json.dumps(summary, indent=1) + "\n")
+            print(f"wrote {path}: test mean error {np.mean(summary['test']['mean_err']):.3f} cm")
 
 
 BASELINES = {"classical": ("classical", {}), "analytic": ("analytic", {}),
@@ -165,25 +206,51 @@ def baselines(args: Args) -> None:
 def _tau_500hz() -> float:
     """The analytic lead's tau with the IK at 500 Hz, as tuned on the tuning seeds
     (`uv run studies/tau.py --env.ik.substep-ik True`, results/studies/tau/tau_500hz.txt)."""
-    text = Path("results/studies/tau/tau_500hz.txt").read_text()
-    return float(text.split("best tau")[1].split()[0])
+    path = Path("results/studies/tau/tau_500hz.txt")
+    try:
+        with open(path, encoding="utf-8") as f:
+            tau = float(f.read(1 << 16).split("best tau")[1].split()[0])
+    except (OSError, UnicodeDecodeError, IndexError, ValueError) as exc:
+        raise UserError(f"{path}: no 'best tau' number ({printable(exc, 120)}); run "
+                        "studies/tau.py as its docstring says") from None
+    if not 0 <= tau <= 1:
+        raise UserError(f"{path}: best tau {tau} is not a number of seconds in [0, 1]")
+    return tau
 
 
-def load_study(study: str) -> list[dict]:
+def load_study(study: str, needs=("best", "test")) -> list[dict]:
+    """A study's summaries, each read with the size bound and checked for the fields ``needs``
+    (panda_lead.summaries.CHECKS) before any work: a damaged one is one line naming it."""
     files = sorted((RUNS_DIR / check_plain_name(study, "--study")).glob("seed_*.json"))
     if not files:
         raise UserError(f"no summaries under {RUNS_DIR / study}/ (run `summarize` first)")
-    return sorted((json.loads(f.read_text()) for f in files), key=lambda s: s["seed"])
+    runs = sorted((read_summary(f, needs) for f in files), key=lambda s: s["seed"])
+    if "test" in needs:
+        same_test_seeds(runs, f"{RUNS_DIR / study}/")
+    return runs
+
+
+def same_test_seeds(runs: list[dict], where: str, baseline: dict | None = None) -> None:
+    """Paired by test trajectory only if every summary (and the baseline) names one seed set."""
+    named = {s.get("test_seeds", TEST) for s in runs}
+    if baseline is not None:
+        named.add(baseline["test_seeds"])
+    if len(named) > 1:
+        raise UserError(f"{where}: the summaries (and baselines) name different test seeds "
+                        f"({', '.join(sorted(map(str, named)))}): not paired by trajectory")
 
 
 def load_baseline(name: str) -> dict:
+    """One baseline's per-trajectory lists from baselines.json (bounded, checked), with the
+    file's test_seeds."""
     path = RUNS_DIR / "baselines.json"
     if not path.is_file():
         raise UserError(f"no {path} (run `uv run studies/runs.py baselines` first)")
-    base = json.loads(path.read_text())
-    if name not in base or not isinstance(base[name], dict):
+    base = read_json(path, "the baselines file")
+    if not isinstance(base, dict) or name not in base or not isinstance(base[name], dict):
         raise UserError(f"no baseline {name!r} in {path}")
-    return base[name]
+    check_test_lists(base[name], path, base.get("test_seeds"), name)
+    return {**base[name], "test_seeds": base["test_seeds"]}
 
 
 def compare_studies(args: Args) -> None:
@@ -193,7 +260,8 @@ def compare_studies(args: Args) -> None:
     across trajectories (a CI over trajectories alone would call a lucky seed a finding)."""
     if not args.against_study:
         raise UserError("compare needs --against-study NAME")
-    a, b = load_study(args.against_study), load_study(args.study)
+    a, b = load_study(args.against_study, ("test",)), load_study(args.study, ("test",))
+    same_test_seeds(a + b, f"--study {args.study} against --against-study {args.against_study}")
     rng = np.random.default_rng(0)
     lines = []
     for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
@@ -233,8 +301,10 @@ def rates(args: Args) -> None:
 
     base = {k: load_baseline(k) for k in ("classical", "classical_500hz", "analytic",
                                           "analytic_500hz")}
-    tau = json.loads((RUNS_DIR / "baselines.json").read_text()).get("analytic_500hz_tau")
-    learned = choose_run(load_study(args.study))
+    tau = read_json(RUNS_DIR / "baselines.json", "the baselines file").get("analytic_500hz_tau")
+    runs = load_study(args.study)
+    same_test_seeds(runs, f"{RUNS_DIR / args.study}/", base["classical"])
+    learned = choose_run(runs)
     print(f"Baselines with the IK at 100 Hz and at 500 Hz (analytic lead's tau re-tuned at 500 Hz "
           f"on the tuning seeds: {tau} s) against the learned lead (`{args.study}` seed "
           f"{learned['seed']}, IK at 100 Hz), test seeds {TEST} (n=1000), paired by trajectory, "
@@ -258,15 +328,20 @@ def rates(args: Args) -> None:
 
 
 def choose_run(runs: list[dict]) -> dict:
-    """The stated rule: lowest best evaluation error (to 0.01 cm), ties to the lower seed."""
+    """The stated rule: lowest best evaluation error (to 0.01 cm), ties to the lower seed.
+    A non-finite error never ranks or chooses (load_study refuses it; this is the last guard)."""
+    bad = [s["seed"] for s in runs if not np.isfinite(s["best"]["mean_error_cm"])]
+    if bad:
+        raise UserError(f"seed(s) {bad}: best evaluation error is not a finite number")
     return min(runs, key=lambda s: (round(s["best"]["mean_error_cm"], 2), s["seed"]))
 
 
 def report(args: Args) -> None:
     from panda_lead.metrics import bootstrap_ci, diff_text
 
-    runs = load_study(args.study)
+    runs = load_study(args.study, ("best", "test", "model"))
     base = load_baseline(args.against)
+    same_test_seeds(runs, f"{RUNS_DIR / args.study}/", base)
     chosen = choose_run(runs)
     print(f"Study `{args.study}`: {len(runs)} training seeds, each its best evaluation-set model "
           f"on test seeds {TEST} (n=1000), 5 s episodes; differences are run - {args.against}, "
@@ -298,22 +373,38 @@ def report(args: Args) -> None:
 
 
 def choose(args: Args) -> None:
-    runs = load_study(args.study)
+    runs = load_study(args.study, ("best", "model") if args.archive_as else ("best",))
     chosen = choose_run(runs)
-    print(f"{args.study}: seed {chosen['seed']} (run {chosen['run']}, best evaluation error "
-          f"{chosen['best']['mean_error_cm']:.3f} cm at {chosen['best']['timesteps']:,} steps)")
+    print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}, best "
+          f"evaluation error {chosen['best']['mean_error_cm']:.3f} cm at "
+          f"{chosen['best']['timesteps']:,} steps)")
     if args.archive_as:
-        from panda_lead.training.archive import archive_model
+        from panda_lead.training.archive import archive_model, check_archive_free
 
         if not args.runs:
             raise UserError("--archive-as needs --runs FOLDER..., the folders holding the run "
                             "folders")
-        found = [Path(d) / chosen["run"] for d in args.runs if (Path(d) / chosen["run"]).is_dir()]
-        if not found:
-            raise UserError(f"run {chosen['run']} is in none of {[str(d) for d in args.runs]}: "
-                            "archive on the machine that trained it")
-        path = archive_model(found[0], args.archive_as, force=args.force)
+        check_archive_free(args.archive_as, args.force)  # before the run's quick test
+        model = _bound_best_model(chosen, args)
+        path = archive_model(model.parent, args.archive_as, force=args.force)
         print(f"archived {path}")
+
+
+def _bound_best_model(s: dict, args: Args) -> Path:
+    """The best model of summary ``s``'s run: its folder, a plain name (the summary checked it),
+    looked for inside each of --runs, and the model there must be the one the summary measured
+    (its SHA-256), or nothing is archived or kept."""
+    from panda_lead.models import verify
+
+    found = [Path(d) / s["run"] / "best_model.zip" for d in args.runs]
+    found = [f for f in found if f.is_file()]
+    if not found:
+        raise UserError(f"run {s['run']} is in none of {[str(d) for d in args.runs]}: "
+                        "use the machine that trained it")
+    if verify(found[0])["model_sha256"] != s["best_model_sha256"]:
+        raise UserError(f"{found[0]} is not the model results/runs/{args.study}/seed_{s['seed']}"
+                        ".json summarizes (its SHA-256 differs): summarize again")
+    return found[0]
 
 
 SEEDS_DIR = Path("archive/seeds")
@@ -323,20 +414,12 @@ def keep(args: Args) -> None:
     """Every seed's best model of a study into archive/seeds/<study>_s<N>.zip (weights and
     sidecar, no card: these are evaluated in tables, the chosen run is the one to use). Each
     must be the model its committed summary was computed from (same SHA-256)."""
-    from panda_lead.models import archive_lock, copy_with_sidecar, pair_state, verify
+    from panda_lead.models import archive_lock, copy_with_sidecar, pair_state
 
     if not args.runs:
         raise UserError("keep needs --runs FOLDER..., the folders holding the study's run folders")
-    for s in load_study(args.study):
-        found = [Path(d) / s["run"] / "best_model.zip" for d in args.runs]
-        found = [f for f in found if f.is_file()]
-        if not found:
-            raise UserError(f"run {s['run']} is in none of {[str(d) for d in args.runs]}: keep "
-                            "on the machine that trained it")
-        src = found[0]
-        if verify(src)["model_sha256"] != s["best_model_sha256"]:
-            raise UserError(f"{src} is not the model results/runs/{args.study}/seed_{s['seed']}"
-                            ".json summarizes (its SHA-256 differs): summarize again")
+    for s in load_study(args.study, ("model",)):
+        src = _bound_best_model(s, args)
         dst = SEEDS_DIR / f"{args.study}_s{s['seed']}.zip"
         dst.parent.mkdir(parents=True, exist_ok=True)
         with archive_lock(dst):
@@ -372,23 +455,61 @@ def rank(args: Args) -> None:
               f"{np.mean(c['test']['settled_err']):.2f} |")
 
 
+# The selection rule that does not wobble (issue 37, stated 2026-11-26; docs/training.md):
+# studies (or models) are ordered by their mean error on the selection set (seeds.SELECT_SEEDS,
+# sized from the measured per-trajectory spread to separate 0.05 cm; every study under the
+# same default evaluation env), and where two neighbours' paired 95% bootstrap CI of the
+# difference includes 0, the smoother one (lower mean tip jerk) ranks first.
+def tie_ranked(errors: dict[str, np.ndarray], jerks: dict[str, float], n_boot: int = 10000,
+               seed: int = 0) -> list[tuple[str, bool]]:
+    """Names in rank order by the rule above, each with whether it is tied (CI includes 0)
+    with the one ranked just above it. ``errors``: per-trajectory mean error (cm) on the same
+    trajectories, in the same order, for every name; ``jerks``: mean tip jerk per name. A swap
+    only ever moves the smoother of two tied neighbours up, so the loop ends."""
+    from panda_lead.metrics.stats import paired_ci
+
+    def tied(a: str, b: str) -> bool:
+        lo, hi = paired_ci(np.asarray(errors[b]) - np.asarray(errors[a]), n_boot, seed)
+        return bool(lo <= 0.0 <= hi)
+
+    order = sorted(errors, key=lambda k: (float(np.mean(errors[k])), k))
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(order) - 1):
+            a, b = order[i], order[i + 1]
+            if jerks[b] < jerks[a] and tied(a, b):
+                order[i], order[i + 1] = b, a
+                changed = True
+    return [(name, i > 0 and tied(order[i - 1], name)) for i, name in enumerate(order)]
+
+
 def curve(args: Args) -> None:
     """Evaluation-set error against training steps (log scale) for every seed of each study,
     from the committed summaries, with the classical and analytic references on the same
-    evaluation set (recomputed here: 15 episodes each)."""
-    from panda_lead.config import EnvConfig
-    from panda_lead.controllers import classical, make_analytic
-    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
-    from panda_lead.training.evaluation import evaluate
+    evaluation set (recomputed here: 15 episodes each). --plot is never replaced without
+    --force."""
+    from panda_lead.outputs import claimed_outputs
 
     if not args.studies or args.plot is None:
         raise UserError("curve needs --studies NAME [NAME ...] and --plot FILE.png")
-    studies = {name: load_study(name) for name in args.studies}
+    check_output(args.plot, "--plot", args.force)
+    studies = {name: load_study(name, ("curve",)) for name in args.studies}
     steps = {s["train_config"]["eval_steps"] for runs in studies.values() for s in runs}
     if len(steps) != 1:
         raise UserError(f"the studies were evaluated on episodes of different lengths: {steps}")
     (eval_steps,) = steps
     stopped = {str(p): _stopped_curve(p) for p in args.stopped}  # a bad file fails before the work
+    with claimed_outputs([args.plot], "--plot", args.force):
+        _draw_curves(args, studies, stopped, eval_steps)
+
+
+def _draw_curves(args: Args, studies: dict, stopped: dict, eval_steps: int) -> None:
+    from panda_lead.config import EnvConfig
+    from panda_lead.controllers import classical, make_analytic
+    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
+    from panda_lead.training.evaluation import evaluate
+
     refs = {name: evaluate(ctrl, EnvConfig(), eval_steps)["mean_error_cm"]
             for name, ctrl in (("classical", classical), ("analytic lead", make_analytic()))}
     plt = pyplot()
@@ -453,25 +574,58 @@ def time_to_quality(studies: dict[str, list[dict]], classical_cm: float, margin_
     return "\n".join(lines)
 
 
+# A committed diagnostics file is ~100 kB; a 50M-step run's SB3 log a few MB.
+MAX_CSV_BYTES = 64 << 20
+
+
+def _read_csv(path: Path, what: str) -> list[dict]:
+    """A CSV file's rows, read with a size bound; not UTF-8 or too large is one line."""
+    if not path.is_file():
+        raise UserError(f"{path}: no such file, expected {what}")
+    with open(path, "rb") as f:
+        data = f.read(MAX_CSV_BYTES + 1)
+    if len(data) > MAX_CSV_BYTES:
+        raise UserError(f"{path}: over {MAX_CSV_BYTES:,} bytes, not {what}")
+    try:
+        return list(csv.DictReader(data.decode("utf-8").splitlines()))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise UserError(f"{path}: not {what} ({printable(exc, 120)})") from None
+
+
 def _read_diagnostics(path: Path) -> list[dict]:
-    """The rows of a diagnostics file (`diagnostics --csv`), its columns checked."""
+    """The rows of a diagnostics file (`diagnostics --csv`), its columns checked and each cell
+    a finite number or empty (None)."""
     if not path.is_file():
         raise UserError(f"{path}: no such file (write it with `runs diagnostics --runs RUN "
                         "--csv FILE`)")
-    with open(path) as f:
-        rows = list(csv.DictReader(f))
+    rows = _read_csv(path, "a diagnostics file")
     if not rows or set(DIAGNOSTICS) - set(rows[0]):
         raise UserError(f"{path}: not a diagnostics file (columns {', '.join(DIAGNOSTICS)})")
-    return rows
+    out = []
+    for i, row in enumerate(rows, start=2):  # line 1 is the header
+        cells = {}
+        for col in DIAGNOSTICS:
+            text = row.get(col) or ""
+            try:
+                value = float(text) if text.strip() else None
+            except ValueError:
+                value = float("nan")
+            if value is not None and not np.isfinite(value):
+                raise UserError(f"{path}, line {i}: {col} {printable(text, 40)!r} is not a "
+                                "finite number")
+            cells[col] = value
+        out.append(cells)
+    return out
 
 
 def _stopped_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(steps, evaluation error) from a diagnostics file's evaluation rows."""
-    rows = [r for r in _read_diagnostics(path) if r["mean_error_cm"]]
+    rows = [r for r in _read_diagnostics(path)
+            if r["mean_error_cm"] is not None and r["eval_timesteps"] is not None]
     if not rows:
         raise UserError(f"--stopped {path}: no evaluation rows")
-    return (np.array([float(r["eval_timesteps"]) for r in rows]),
-            np.array([float(r["mean_error_cm"]) for r in rows]))
+    return (np.array([r["eval_timesteps"] for r in rows]),
+            np.array([r["mean_error_cm"] for r in rows]))
 
 
 DIAGNOSTICS = {"total_timesteps": "time/total_timesteps", "eval_timesteps": "eval/timesteps",
@@ -486,20 +640,23 @@ def diagnostics(args: Args) -> None:
     then (from that file alone) their means per window of training steps. A run that came
     apart is stopped and never summarized; this file is what remains of it in git."""
     from panda_lead.atomicio import atomic_write
+    from panda_lead.outputs import claimed_outputs
 
     if args.csv is None or len(args.runs) > 1:
         raise UserError("diagnostics needs --csv FILE (and --runs RUN, one run folder, to write it)")
+    if args.window < 1:
+        raise UserError(f"--window must be a whole number of training steps >= 1, got "
+                        f"{args.window}")
     if args.runs:
         log = args.runs[0] / "tb" / "progress.csv"
         if not log.is_file():
             raise UserError(f"{log}: no such file (is {args.runs[0]} a run folder?)")
-        if args.csv.exists() and not args.force:
-            raise UserError(f"{args.csv} exists (add --force to replace it)")
-        with open(log) as f:
-            rows = list(csv.DictReader(f))
+        check_output(args.csv, "--csv", args.force)
+        rows = _read_csv(log, "an SB3 training log")
         updates = [r for r in rows if r.get("train/std") and not r.get("eval/mean_error_cm")]
         kept = {id(r) for r in updates[::8]}
-        with atomic_write(args.csv, ".tmp.csv") as tmp, open(tmp, "w", newline="") as f:
+        with claimed_outputs([args.csv], "--csv", args.force), \
+                atomic_write(args.csv, ".tmp.csv") as tmp, open(tmp, "w", newline="") as f:
             out = csv.writer(f, lineterminator="\n")
             out.writerow(DIAGNOSTICS)
             out.writerows([r.get(c, "") for c in DIAGNOSTICS.values()] for r in rows
@@ -510,8 +667,8 @@ def diagnostics(args: Args) -> None:
     def windowed(step_key: str, key: str) -> dict[int, float]:
         by: dict[int, list[float]] = {}
         for r in rows:
-            if r[step_key] and r[key]:
-                by.setdefault(int(float(r[step_key]) - 1) // args.window, []).append(float(r[key]))
+            if r[step_key] is not None and r[key] is not None:
+                by.setdefault(int(r[step_key] - 1) // args.window, []).append(r[key])
         return {w: float(np.mean(v)) for w, v in by.items()}
 
     cols = {"evaluation error (cm)": windowed("eval_timesteps", "mean_error_cm"),

@@ -140,3 +140,12 @@ def test_rollouts_record_the_commanded_goals(tmp_path):
     np.savez_compressed(old, **{k: np.asarray(getattr(r, k)) for k in ARRAY_KEYS},
                         meta=np.array(json.dumps(r.meta, sort_keys=True)))
     assert load(old).q_goal is None
+
+
+def test_many_episodes_at_once_check_as_each_alone():
+    q = np.stack([sine_goals(6, a, 2 * np.pi * 3.0) for a in (0.02, 0.05, 0.08)])
+    together = limits.check_many(q, DT, skip=0.3)
+    for episode, got in zip(q, together, strict=True):
+        alone = limits.check(episode, DT, skip=0.3)
+        assert got.worst_limit == alone.worst_limit
+        assert got.margins == pytest.approx(alone.margins, rel=1e-12)

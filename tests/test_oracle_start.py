@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from panda_lead import rollout
+from panda_lead import rollout, trajectory
 from panda_lead.errors import UserError
 from panda_lead.harness import build
 from panda_lead.ilc import ILCConfig, check_oracle_start, oracle_meta, oracle_start
@@ -23,11 +23,12 @@ SHA_X, SHA_Y = "a" * 64, "b" * 64
 
 
 def offset_rollout(offset_m, seed, meta, T=60, dt=0.01):
+    """The seed's own target (a rollout file must hold it), the tip offset_m away along x."""
     t = dt * np.arange(1, T + 1)
-    target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
+    target, vel, acc = trajectory.sample(seed, "circle").at(t)
     z3, z7 = np.zeros((T, 3)), np.zeros((T, 7))
-    return Rollout(t=t, ee_pos=target + [offset_m, 0, 0], target_pos=target, target_vel=z3,
-                   target_acc=z3, lead=z3, qpos=z7, qvel=z7, self_collision=np.zeros(T, bool),
+    return Rollout(t=t, ee_pos=target + [offset_m, 0, 0], target_pos=target, target_vel=vel,
+                   target_acc=acc, lead=z3, qpos=z7, qvel=z7, self_collision=np.zeros(T, bool),
                    collision_depth=np.zeros(T), reachable=np.ones(T, bool),
                    meta=dict(seed=seed, shape="circle", duration=T * dt, dt=dt, **meta))
 

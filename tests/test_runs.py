@@ -25,7 +25,7 @@ def write_study(root, study, evals, test_err):
     (root / study).mkdir()
     for seed, e in evals.items():
         summary = {"seed": seed, "run": f"r{seed}", "best": {"mean_error_cm": e, "timesteps": 1},
-                   "best_model_sha256": "0" * 64, "timesteps": 1,
+                   "best_model_sha256": "0" * 64, "timesteps": 1, "test_seeds": "0-3",
                    "test": {"mean_err": [test_err] * 4, "settled_err": [test_err / 2] * 4,
                             "jerk_rms": [1.0] * 4}}
         (root / study / f"seed_{seed}.json").write_text(json.dumps(summary))
@@ -91,12 +91,12 @@ def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes
     runs.curve(runs.Args(command="curve", studies=["a", "b"], plot=plot))
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     out, err = capsys.readouterr()
-    assert err.strip() == f"wrote {plot}"  # stdout is the table (results.sh redirects it)
+    assert err.strip() == f"wrote {plot}"  # stdout is the table (results.py writes it to the table)
     refs = dict(line.split(": ") for line in out.splitlines()[0:2])
     classical, analytic = (float(refs[k].split()[0]) for k in ("classical", "analytic lead"))
     assert analytic < classical  # the analytic lead leads the target: it tracks better
     with pytest.raises(runs.UserError, match="different lengths"):  # not one evaluation set
-        runs.curve(runs.Args(command="curve", studies=["a", "other"], plot=plot))
+        runs.curve(runs.Args(command="curve", studies=["a", "other"], plot=plot, force=True))
 
 
 def test_choose_looks_for_the_chosen_run_in_every_folder_given(runs, tmp_path):

@@ -28,15 +28,19 @@ class Args:
     seed under --prefix."""
     prefix: str = "eval"
     """Rollout set name (a plain name): files go to <rollouts-dir>/<prefix>/seed_NNNN.npz."""
-    controller: Literal["policy", "classical", "analytic", "ilc"] = "policy"
-    """Which lead: a trained policy, none (classical), v*tau + a*tau^2/2 (analytic), or the
+    controller: Literal["policy", "classical", "analytic", "ilc", "future_target",
+                        "feedforward"] = "policy"
+    """Which lead: a trained policy, none (classical), v*tau + a*tau^2/2 (analytic), the
     ILC ORACLE (replays each trajectory and learns its lead from the errors it saw: a ceiling,
-    not a controller; started from the --model's lead by default, see --ilc)."""
+    not a controller; started from the --model's lead by default, see --ilc), or a rival that
+    knows the planned path: the IK aimed at the future target p(t + tau) (future_target), or
+    joint goals that invert the simulated servos on the planned joint path (feedforward)."""
     model: Path | None = None
     """Policy zip with its sidecar (default: the headline model, models.DEFAULT_MODEL, in
     ./archive or the archive shipped with the package)."""
     tau: float | None = None
-    """Look-ahead of the analytic lead in seconds (default: the tuned value)."""
+    """Look-ahead of the analytic lead, the future target or the feedforward, in seconds
+    (default: each one's tuned value)."""
     ilc: ILCConfig = field(default_factory=ILCConfig)
     """The ILC oracle's settings (defaults chosen on the tuning seeds)."""
     shape: str | None = None

@@ -1,0 +1,80 @@
+"""Tune the two classical rivals that know the planned path on the tuning seeds (never the test
+seeds): the future-target lead's tau, and the model-based feedforward's tau, gain and IK
+look-ahead (panda_lead/preview.py).
+
+    uv run studies/preview_rivals.py > results/studies/preview/rivals_tuning.md
+
+Every setting plays all 50 tuning seeds (5 s episodes) as one batch; the lowest mean error
+wins and is what controllers.FUTURE_TAU / FEEDFORWARD_* hold. The analytic lead at its tuned
+tau is printed alongside for scale.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from dataclasses import dataclass
+
+import numpy as np
+import tyro
+
+
+@dataclass
+class Args:
+    duration: float = 5.0
+    """Episode length in seconds."""
+    future_taus: tuple[float, ...] = (0.02, 0.03, 0.04, 0.05, 0.06, 0.08)
+    """Candidate look-aheads of the future-target lead (s)."""
+    ff_settings: tuple[str, ...] = ("0.01:1.0:0.01", "0.0:1.0:0.01", "0.02:1.0:0.01",
+                                    "0.01:0.8:0.01", "0.01:1.2:0.01", "0.01:1.0:0.0",
+                                    "0.01:1.0:0.02", "0.01:1.0:none")
+    """Feedforward settings tau:gain:tau_ik (s, -, s; tau_ik 'none': the planned joint path
+    alone, no IK at run time)."""
+
+
+def mean_errors(config, act, seeds) -> tuple[float, float]:
+    from panda_lead.rollout import record_many
+
+    rollouts = record_many(config, act, seeds)
+    settled = [r.error[r.t >= 0.5].mean() for r in rollouts]
+    return 100 * float(np.mean([r.error.mean() for r in rollouts])), 100 * float(np.mean(settled))
+
+
+def main(args: Args) -> None:
+    from panda_lead import controllers, preview
+    from panda_lead.config import EnvConfig
+    from panda_lead.core import control_dt
+    from panda_lead.seeds import TUNE_SEEDS
+
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True).stdout.strip()
+    print(f"`uv run studies/preview_rivals.py` at commit {commit}; tuning seeds "
+          f"{TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]} ({len(TUNE_SEEDS)}), {args.duration:g} s episodes; "
+          "mean / settled (t >= 0.5 s) tracking error, cm\n")
+    config = EnvConfig(episode_steps=int(round(args.duration / control_dt())))
+    print("| controller | setting | mean error | settled |\n|---|---|---|---|")
+    m, s = mean_errors(config, controllers.make_analytic(), TUNE_SEEDS)
+    print(f"| analytic lead | tau {controllers.DEFAULT_TAU} s | {m:.2f} | {s:.2f} |", flush=True)
+    future = {}
+    for tau in args.future_taus:
+        future[tau] = mean_errors(config, preview.make_future_target(tau), TUNE_SEEDS)
+        print(f"| future target | tau {tau} s | {future[tau][0]:.2f} | {future[tau][1]:.2f} |",
+              flush=True)
+    joint = config.replace(action="joint_target")
+    ff = {}
+    for setting in args.ff_settings:
+        tau, gain, tau_ik = setting.split(":")
+        ik = None if tau_ik == "none" else float(tau_ik)
+        ff[setting] = mean_errors(joint, preview.make_feedforward(float(tau), float(gain), ik),
+                                  TUNE_SEEDS)
+        print(f"| model-based feedforward | tau {tau} s, gain {gain}, IK look-ahead {tau_ik} "
+              f"| {ff[setting][0]:.2f} | {ff[setting][1]:.2f} |", flush=True)
+    best_f = min(future, key=lambda k: future[k][0])
+    best_ff = min(ff, key=lambda k: ff[k][0])
+    print(f"\nbest: future target tau {best_f} s ({future[best_f][0]:.2f} cm); feedforward "
+          f"{best_ff} ({ff[best_ff][0]:.2f} cm). In use: future target tau "
+          f"{controllers.FUTURE_TAU} s; feedforward tau {controllers.FEEDFORWARD_TAU}, gain "
+          f"{controllers.FEEDFORWARD_GAIN}, IK look-ahead {controllers.FEEDFORWARD_TAU_IK}.")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args, description=__doc__))

@@ -1,0 +1,181 @@
+"""A selection rule that does not wobble (issue 37): size the selection set from the measured
+per-trajectory spread, then rank models and studies on it, like for like, with the tie rule.
+
+    uv run studies/selection.py size > results/studies/rank/sizing.md
+    uv run studies/selection.py score archive/seeds/v7_s1.zip ...   # -> results/studies/rank/scores/
+    uv run studies/selection.py rank > results/studies/rank/rank.md
+
+**Sizing.** The two closest studies of the old rank (the headline study's chosen model and the
+runner-up's) play the first ``--pilot`` trajectories of seeds.SELECT_SEEDS; the standard
+deviation s of their paired per-trajectory differences in mean error gives the number of
+trajectories at which a true difference of 0.05 cm has a 95% CI that excludes zero 80% of the
+time: n = ((1.96 + 0.84) s / 0.05)^2. No test seed is played.
+
+**Scoring.** Every model plays the selection set under the default evaluation env (harness:
+training-only randomisations dropped: the delay- and noise-trained models are scored under the
+same conditions as the rest); per trajectory its mean error (cm) and tip jerk RMS (m/s^3) are
+kept in results/studies/rank/scores/<name>.json (a few kB: the rank re-derives from git).
+
+**Ranking** (studies/runs.py tie_ranked): a study is the per-trajectory mean over its seeds'
+models (archive/seeds/<study>_s<k>.zip); ordered by mean error; two neighbours whose paired 95%
+CI includes 0 are tied and the smoother (lower mean jerk) ranks first. Models archived alone
+(archive/<name>.zip, a study's chosen seed) are ranked in a second table, as models.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import tyro
+
+ROOT = Path(__file__).resolve().parents[1]
+SCORES = ROOT / "results" / "studies" / "rank" / "scores"
+Z_95, Z_POWER_80 = 1.959964, 0.841621
+DELTA_CM = 0.05
+
+
+@dataclass
+class Args:
+    command: Literal["size", "score", "rank"]
+    models: tuple[Path, ...] = ()
+    """score: the model zips to play on the selection set."""
+    model_a: Path = Path("archive/v5_err_decay_s4.zip")
+    """size: the first model of the pilot pair (the headline study's chosen seed)."""
+    model_b: Path = Path("archive/v5_err_decay_wide_lr3e-4.zip")
+    """size: the second (the runner-up study's chosen seed)."""
+    pilot: int = 200
+    """size: trajectories of the pilot (the first of the selection set)."""
+    duration: float = 5.0
+    """Episode length (s), the test rollouts' length."""
+    force: bool = False
+    """score: replace a model's existing scores."""
+
+
+def size_for(spread_cm: float, delta_cm: float = DELTA_CM) -> int:
+    """Trajectories at which a true paired difference of delta_cm is shown (95% CI excluding 0)
+    with 80% power, for a per-trajectory spread (standard deviation) of spread_cm."""
+    return int(np.ceil(((Z_95 + Z_POWER_80) * spread_cm / delta_cm) ** 2))
+
+
+def _commit() -> str:
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True, cwd=ROOT).stdout.strip()
+
+
+def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, str]:
+    """(per-trajectory mean error cm, tip jerk RMS m/s^3, model sha256) on ``seeds``."""
+    from panda_lead.core import control_dt
+    from panda_lead.harness import build
+    from panda_lead.metrics.pairing import charged
+    from panda_lead.metrics.stats import rollout_metrics
+    from panda_lead.rollout import iter_record
+
+    ctrl = build("policy", int(round(duration / control_dt())), Path(model))
+    err, jerk = [], []
+    for r in iter_record(ctrl.config, ctrl.act, list(seeds), None, ctrl.meta):
+        m = rollout_metrics(charged(r)[0])
+        err.append(m["mean_err"])
+        jerk.append(m["jerk_rms"])
+    return np.array(err), np.array(jerk), ctrl.meta["model_sha256"]
+
+
+def size(args: Args) -> None:
+    from panda_lead.seeds import SELECT_SEEDS
+
+    seeds = SELECT_SEEDS[:args.pilot]
+    ea, ja, _ = play(args.model_a, seeds, args.duration)
+    eb, jb, _ = play(args.model_b, seeds, args.duration)
+    d = eb - ea
+    s = float(np.std(d, ddof=1))
+    print(f"Made by `uv run studies/selection.py size` at commit {_commit()} (2-core Intel "
+          f"Xeon). Pilot: the first {len(seeds)} trajectories of the selection set "
+          f"(seeds {seeds[0]}-{seeds[-1]}), {args.duration:g} s episodes, default evaluation "
+          "env.\n")
+    print(f"| model | mean error (cm) | tip jerk RMS (m/s^3) |\n|---|---|---|")
+    for p, e, j in ((args.model_a, ea, ja), (args.model_b, eb, jb)):
+        print(f"| {p.stem} | {e.mean():.3f} | {j.mean():.0f} |")
+    print(f"\nPaired per-trajectory difference (B - A): mean {d.mean():+.3f} cm, standard "
+          f"deviation s = {s:.3f} cm. Trajectories to show a 0.05 cm difference (95% CI "
+          f"excluding 0) with 80% power: n = ((1.96 + 0.84) s / 0.05)^2 = {size_for(s)}.")
+
+
+def score(args: Args) -> None:
+    from panda_lead.seeds import SELECT_SEEDS
+
+    SCORES.mkdir(parents=True, exist_ok=True)
+    for model in args.models:
+        out = SCORES / f"{Path(model).stem}.json"
+        if out.exists() and not args.force:
+            print(f"{out} exists (--force to replace)")
+            continue
+        err, jerk, sha = play(Path(model), SELECT_SEEDS, args.duration)
+        from panda_lead.atomicio import atomic_write
+
+        record = {"model": str(model), "model_sha256": sha, "commit": _commit(),
+                  "seeds": [SELECT_SEEDS[0], SELECT_SEEDS[-1]], "duration_s": args.duration,
+                  "mean_err_cm": [round(float(x), 5) for x in err],
+                  "jerk_rms": [round(float(x), 2) for x in jerk]}
+        with atomic_write(out, ".tmp") as tmp:
+            Path(tmp).write_text(json.dumps(record) + "\n")
+        print(f"{Path(model).stem}: {err.mean():.3f} cm, jerk {jerk.mean():.0f} -> {out}",
+              flush=True)
+
+
+def _study_of(stem: str) -> tuple[str, int] | None:
+    m = re.fullmatch(r"(.+)_s(\d+)", stem)
+    return (m.group(1), int(m.group(2))) if m else None
+
+
+def rank(args: Args) -> None:
+    sys.path.insert(0, str(ROOT / "studies"))
+    from runs import tie_ranked
+
+    from panda_lead.seeds import SELECT_SEEDS
+
+    scores = {}
+    for f in sorted(SCORES.glob("*.json")):
+        rec = json.loads(f.read_text())
+        if rec["seeds"] != [SELECT_SEEDS[0], SELECT_SEEDS[-1]]:
+            raise SystemExit(f"error: {f} was scored on another selection set; score it again")
+        scores[f.stem] = rec
+    studies: dict[str, list[str]] = {}
+    for stem, rec in scores.items():
+        if "/seeds/" in rec["model"] and _study_of(stem):
+            studies.setdefault(_study_of(stem)[0], []).append(stem)
+    print(f"Made by `uv run studies/selection.py rank` at commit {_commit()}, from the scores "
+          f"in results/studies/rank/scores/ (selection set: seeds {SELECT_SEEDS[0]}-"
+          f"{SELECT_SEEDS[-1]}, {len(SELECT_SEEDS)} trajectories, never trained, tuned or "
+          "tested on; every model under the default evaluation env, no delay, no noise).\n")
+    print("Rule (2026-11-26): ordered by mean error on the selection set; neighbours whose "
+          "paired 95% CI includes 0 are tied, and the smoother (lower mean tip jerk) ranks "
+          "first.\n")
+    for title, groups in (("Studies (per-trajectory mean over the study's archived seeds)",
+                           {k: v for k, v in studies.items() if len(v) >= 3}),
+                          ("Models", {k: [k] for k in scores})):
+        if not groups:
+            continue
+        errors = {k: np.mean([scores[m]["mean_err_cm"] for m in v], axis=0)
+                  for k, v in groups.items()}
+        jerks = {k: float(np.mean([scores[m]["jerk_rms"] for m in v])) for k, v in
+                 groups.items()}
+        order = tie_ranked(errors, jerks)
+        print(f"\n{title}\n\n| rank | name | seeds | mean error (cm) | tip jerk RMS (m/s^3) | "
+              "tied with the row above |\n|---|---|---|---|---|---|")
+        for i, (name, tied) in enumerate(order, 1):
+            print(f"| {i} | {name} | {len(groups[name])} | {errors[name].mean():.3f} | "
+                  f"{jerks[name]:.0f} | {'yes' if tied else ''} |")
+
+
+def main(args: Args) -> None:
+    {"size": size, "score": score, "rank": rank}[args.command](args)
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args, description=__doc__))

@@ -1,0 +1,115 @@
+"""The deployability study (studies/deploy.py) and the rivals it fields: the analytic lead with
+a Kalman filter under noise, and the analytic lead that predicts through a known latency."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from panda_lead import controllers
+from panda_lead.config import EnvConfig
+from panda_lead.core import analytic_lead
+from panda_lead.task import LeadTask
+
+ROOT = Path(__file__).resolve().parents[1]
+NOISE_1CM = {"ee_pos": 0.01, "target_pos": 0.01, "ee_vel": 0.1, "target_vel": 0.1,
+             "target_acc": 1.0}
+
+
+def _leads(config: EnvConfig, acts: dict, steps: int = 150, seeds=(3, 4, 5, 6)):
+    """Play the classical controller and, at every step, ask each act function for its lead
+    (m) and record the true analytic lead (from the true target) at that step."""
+    task = LeadTask(config, len(seeds))
+    task.rngs = [np.random.default_rng(s) for s in seeds]
+    obs = task.reset(None, list(seeds))
+    got = {name: [] for name in acts}
+    truth = []
+    for _ in range(steps):
+        for name, act in acts.items():
+            got[name].append(act(obs, task) * config.max_lead)
+        _, vel, acc = task.core.target()
+        truth.append(analytic_lead(vel, acc, controllers.DEFAULT_TAU, config.max_lead))
+        obs = task.step(controllers.classical(obs, task))[0]
+    return {k: np.array(v) for k, v in got.items()}, np.array(truth)
+
+
+def test_filter_recovers_the_lead_that_noise_hides():
+    """Under 1 cm of noise the filtered lead is nearer the lead of the true target than the
+    analytic lead computed from the noisy readings, by more than half."""
+    config = EnvConfig(obs_noise=NOISE_1CM)
+    got, truth = _leads(config, {"raw": controllers.make_analytic(),
+                                 "filtered": controllers.make_filtered_analytic()})
+    settled = slice(30, None)
+    raw = np.abs(got["raw"] - truth)[settled].mean()
+    filtered = np.abs(got["filtered"] - truth)[settled].mean()
+    assert filtered < 0.5 * raw
+
+
+def test_filter_without_noise_is_the_analytic_lead():
+    got, truth = _leads(EnvConfig(), {"raw": controllers.make_analytic(),
+                                      "filtered": controllers.make_filtered_analytic()}, 60)
+    np.testing.assert_allclose(got["filtered"], got["raw"], atol=1e-5)
+
+
+def test_steady_state_gain_trusts_the_better_sensor():
+    """A precise position reading and poor velocity: the gain follows the position."""
+    k = controllers.steady_state_gain(0.01, np.array([1e-4, 1.0, 10.0]), 1e3)
+    assert k[0, 0] > 0.9 and k[1, 1] < 0.1  # position followed, velocity smoothed
+    assert np.allclose(controllers.steady_state_gain(0.01, np.zeros(3), 1e3), np.eye(3),
+                       atol=1e-6)
+
+
+def test_prediction_through_the_delay_lands_nearer_the_lead_it_should_be():
+    """With 2 steps of observation and 2 of action latency, the lead computed now lands 2 steps
+    later from readings 2 steps old: the predicting lead is nearer the true lead at the step it
+    is applied than the plain analytic lead."""
+    config = EnvConfig(obs_delay=2, action_delay=2)
+    got, truth = _leads(config, {"plain": controllers.make_analytic(),
+                                 "predict": controllers.make_predicting_analytic()})
+    applied = slice(30, -2)  # the lead asked for at step k acts at step k + 2
+    later = truth[32:]
+    plain = np.abs(got["plain"][applied] - later).mean()
+    predict = np.abs(got["predict"][applied] - later).mean()
+    assert predict < 0.8 * plain
+
+
+def _deploy_module():
+    spec = importlib.util.spec_from_file_location("deploy_study", ROOT / "studies" / "deploy.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["deploy_study"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_deploy_writes_the_table_and_the_figure(tmp_path, capsys):
+    deploy = _deploy_module()
+    args = deploy.Args(seeds="0-1", conditions=["noise1", "delay1"], out=tmp_path,
+                       bootstrap=100, duration=0.8)
+    deploy.main(args)
+    text = (tmp_path / "deploy.md").read_text()
+    assert text.startswith("`uv run studies/deploy.py --seeds 0-1 --conditions noise1 delay1` ")
+    rows = [line for line in text.splitlines() if line.startswith("| ")][1:]
+    names = [(r.split(" | ")[0][2:], r.split(" | ")[1]) for r in rows]
+    assert names == [("noise 1 cm", "Classical"), ("noise 1 cm", "Analytic"),
+                     ("noise 1 cm", "Analytic+filter"),
+                     ("latency 1 step (10 ms)", "Classical"),
+                     ("latency 1 step (10 ms)", "Analytic"),
+                     ("latency 1 step (10 ms)", "Analytic+predict")]
+    assert (tmp_path / "deploy.png").stat().st_size > 10_000
+    with pytest.raises(SystemExit) as exc:  # no overwrite without --force
+        deploy.main(args)
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().startswith("error: ")
+
+
+def test_deploy_refuses_an_unknown_condition(tmp_path, capsys):
+    deploy = _deploy_module()
+    with pytest.raises(SystemExit) as exc:
+        deploy.main(deploy.Args(conditions=["delay2"], out=tmp_path))
+    assert exc.value.code == 2
+    assert "unknown condition 'delay2'" in capsys.readouterr().err
+    assert not (tmp_path / "deploy.md").exists()

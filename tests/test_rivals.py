@@ -1,0 +1,122 @@
+"""The classical rivals that know the planned path (issue 37): the IK aimed at the exact future
+target, and the model-based feedforward that inverts the simulated joint servos."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from panda_lead import controllers, preview
+from panda_lead.config import EnvConfig
+from panda_lead.core import N_JOINTS, home_qpos, load_model
+from panda_lead.harness import build
+from panda_lead.rollout import record_many
+from panda_lead.task import LeadTask
+
+ROOT = Path(__file__).resolve().parents[1]
+SEEDS = [3, 11]
+
+
+def test_the_future_target_lead_is_the_path_ahead_minus_the_present():
+    tau = 0.05  # 5 control steps: p(t + tau) is a row of the path, no interpolation
+    config = EnvConfig(episode_steps=40, max_lead=1.0)  # a bound that clips nothing here
+    task = LeadTask(config, len(SEEDS))
+    obs = task.reset(None, SEEDS)
+    act = preview.make_future_target(tau)
+    for _ in range(7):
+        obs, *_ = task.step(act(obs, task))
+    lead = act(obs, task) * config.max_lead
+    for i in range(len(SEEDS)):
+        t = task.core.time[i]
+        want = task.trajs[i].at(t + tau)[0] - task.trajs[i].at(t)[0]
+        assert np.allclose(lead[i], want, atol=1e-6)  # float32 actions
+
+
+def test_the_future_target_lead_reads_the_path_past_the_episodes_end():
+    config = EnvConfig(episode_steps=5, max_lead=1.0)
+    task = LeadTask(config, 1)
+    obs = task.reset(None, [7])
+    act = preview.make_future_target(0.2)  # 20 steps ahead of a 5-step episode
+    for _ in range(5):
+        obs, *_ = task.step(act(obs, task))
+    t = task.core.time[0]
+    want = task.trajs[0].at(t + 0.2)[0] - task.trajs[0].at(t)[0]
+    assert np.allclose(act(obs, task)[0], want, atol=1e-6)
+
+
+def test_the_servo_correction_is_mass_times_acceleration_plus_bias_without_gravity():
+    """The brief's formula, computed independently: (M qdd + qfrc_bias - gravity compensation
+    + joint damping qd + actuator kv qd) / kp, from mj_fullM and mj_forward."""
+    config = EnvConfig(episode_steps=30)
+    task = LeadTask(config, 1)
+    task.reset(None, [5])
+    cache = preview._PathCache(0.0, joint_path=True)
+    cache.update(task)
+    q, corr = cache.goal[0, :, :, 0], cache.goal[0, :, :, 1]
+    dt = task.dt
+    qd, qdd = np.gradient(q, dt, axis=0), np.gradient(np.gradient(q, dt, axis=0), dt, axis=0)
+    m = load_model()
+    d = mujoco.MjData(m)
+    kp = np.array([2000, 2000, 1500, 1500, 500, 500, 300.0])  # assets/panda.xml
+    for k in (3, 15, 28):
+        d.qpos[:N_JOINTS], d.qvel[:N_JOINTS] = q[k], qd[k]
+        mujoco.mj_forward(m, d)
+        mass = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, mass)
+        kv = -m.actuator_biasprm[:N_JOINTS, 2]
+        force = (mass @ qdd[k] + d.qfrc_bias - d.qfrc_gravcomp)[:N_JOINTS]
+        want = (force + (m.dof_damping[:N_JOINTS] + kv) * qd[k]) / kp
+        assert np.allclose(corr[k], want, rtol=1e-6, atol=1e-9)
+    # The desired path is the IK of the target: the tip sits on the target along it.
+    tip = m.site("tip").id
+    for k in (0, 15, 30):
+        d.qpos[:N_JOINTS] = q[k]
+        mujoco.mj_kinematics(m, d)
+        assert np.linalg.norm(d.site_xpos[tip] - cache.pos[0, k]) < 1e-3
+
+
+def test_a_joint_goal_survives_the_joint_target_action_map():
+    task = LeadTask(EnvConfig(episode_steps=3, action="joint_target"), 1)
+    obs = task.reset(None, [1])
+    goal = home_qpos() + np.array([0.3, -0.2, 0.1, 0.4, -0.5, 0.2, -0.1])
+    task.step(preview.joint_target_action(task.core, goal[None]))
+    assert np.allclose(task.core.q_goal[0], goal, atol=1e-6)
+
+
+def test_inverting_the_servos_tracks_better_than_the_plain_ik():
+    config = EnvConfig(episode_steps=150)
+    base = record_many(config, controllers.classical, SEEDS)
+    ff = record_many(config.replace(action="joint_target"), controllers.make_feedforward(),
+                     SEEDS)
+    for a, b in zip(base, ff, strict=True):
+        assert b.error[50:].mean() < 0.5 * a.error[50:].mean()
+
+
+def test_ikpd_writes_both_rivals_rollouts_labelled_as_knowing_the_path(tmp_path):
+    for name in controllers.PREVIEW_RIVALS:
+        out = subprocess.run([sys.executable, str(ROOT / "ikpd.py"), "--controller", name,
+                              "--seeds", "0-1", "--prefix", name, "--duration", "0.3"],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr
+        files = sorted((tmp_path / "rollouts" / name).glob("seed_*.npz"))
+        assert len(files) == 2
+        meta = json.loads(str(np.load(files[0])["meta"]))
+        assert meta["controller"] == name and meta["knows_path"] is True
+        assert meta["tau"] == build(name, 30).meta["tau"]
+
+
+@pytest.mark.parametrize("name", controllers.PREVIEW_RIVALS)
+def test_a_rival_refuses_the_wrong_action_kind(name):
+    wrong = "joint_target" if name == "future_target" else "lead"
+    task = LeadTask(EnvConfig(episode_steps=3, action=wrong), 1)
+    obs = task.reset(None, [1])
+    act = {"future_target": controllers.make_future_target,
+           "feedforward": controllers.make_feedforward}[name]()
+    with pytest.raises(ValueError, match="needs action"):
+        act(obs, task)
