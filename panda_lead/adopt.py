@@ -33,7 +33,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .config import ACTIONS, OBS_12, OBS_15, OBS_29, OBS_FEATURES, EnvConfig
+from .config import ACTIONS, EnvConfig
 from .errors import UserError, check_plain_name
 from .models import (
     ModelError,
@@ -42,6 +42,7 @@ from .models import (
     archive_lock,
     check_policy_spec,
     file_sha256,
+    obs_flags_for,
     read_member,
     spaces_for,
 )
@@ -89,6 +90,8 @@ def read_data(path: Path) -> dict:
     raw = read_member(path, "data", MAX_DATA_BYTES)
     try:
         data = json.loads(raw)
+    except RecursionError:  # thousands of nested brackets: no SB3 writes that
+        raise _refuse(path, "its data member nests too deeply; not an SB3 zip") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise _refuse(path, f"its data member is not JSON: {str(exc)[:120]}; not an SB3 zip") \
             from None
@@ -193,14 +196,8 @@ def _box(path: Path, data: dict, key: str) -> tuple[int, dict]:
 
 
 def _hint_obs(dim: int) -> str:
-    known = {sum(OBS_FEATURES[f] for f in feats): feats for feats in (OBS_12, OBS_15, OBS_29)}
-    for stack in range(1, 17):
-        if dim % stack == 0 and dim // stack in known:
-            feats = known[dim // stack]
-            flags = f"--env.obs-features {' '.join(feats)}" + (
-                f" --env.obs-stack {stack}" if stack > 1 else "")
-            return f"; {dim}-D is what {flags} gives: add that if it was trained so"
-    return ""
+    flags = obs_flags_for(dim)
+    return f"; {dim}-D is what {flags} gives: add that if it was trained so" if flags else ""
 
 
 def check_spaces(path: Path, data: dict, env_config: EnvConfig) -> tuple[int, int]:
@@ -230,7 +227,15 @@ def check_spaces(path: Path, data: dict, env_config: EnvConfig) -> tuple[int, in
 # --- the weights ------------------------------------------------------------------------------
 def _widths(state: dict, prefix: str, path: Path) -> list[int]:
     """Hidden widths of an SB3 MLP (Linear at 0, 2, 4, ...) from its weight shapes."""
-    keys = sorted((k for k in state if k.startswith(prefix) and k.endswith(".weight")),
+    mine = [k for k in state if k.startswith(prefix)]
+    # An SB3 MLP's keys are PREFIX<index>.weight / .bias, each weight a 2-D matrix, each bias
+    # 1-D: anything else (mlp_extractor.policy_net.abc.weight, a 1-D "weight") is no MLP here.
+    odd = [k for k in mine if not re.fullmatch(r"\d{1,3}\.(weight|bias)", k[len(prefix):])
+           or state[k].ndim != (2 if k.endswith(".weight") else 1)]
+    if odd:
+        raise _refuse(path, f"its {prefix[:-1]} holds {odd[0][:80]} of shape "
+                            f"{tuple(state[odd[0]].shape)}, which is no layer of an SB3 MLP")
+    keys = sorted((k for k in mine if k.endswith(".weight")),
                   key=lambda k: int(k[len(prefix):].split(".")[0]))
     indices = [int(k[len(prefix):].split(".")[0]) for k in keys]
     if indices != list(range(0, 2 * len(keys), 2)):
@@ -269,6 +274,12 @@ def read_weights(path: Path, data: dict, kwargs: dict, obs_dim: int, act_dim: in
         if key not in state:
             raise _refuse(path, f"its policy.pth has no {key}; not an MlpPolicy with a "
                                 "Gaussian action")
+    for key in ("action_net.weight", "value_net.weight"):
+        if state[key].ndim != 2:
+            raise _refuse(path, f"its {key} has shape {tuple(state[key].shape)}, not a matrix")
+    if state["log_std"].ndim != 1:
+        raise _refuse(path, f"its log_std has shape {tuple(state['log_std'].shape)}, not a "
+                            "vector")
     pi = _widths(state, "mlp_extractor.policy_net.", path)
     vf = _widths(state, "mlp_extractor.value_net.", path)
     if state["mlp_extractor.policy_net.0.weight"].shape[1] != obs_dim or \
@@ -294,7 +305,15 @@ def _zoo_yaml(path: Path, file: Path) -> dict:
     import yaml
 
     class Loader(yaml.SafeLoader):
-        pass
+        def compose_node(self, parent, index):
+            # An alias repeats a node by reference: nine levels of ten make a 535-byte file
+            # expand to 10^9 values (a "billion laughs"). RL Zoo writes none, so refuse any,
+            # before anything is built or formatted into a message.
+            if self.check_event(yaml.AliasEvent):
+                mark = self.peek_event().start_mark
+                raise yaml.composer.ComposerError(
+                    None, None, "uses a YAML alias (*name), which RL Zoo never writes", mark)
+            return super().compose_node(parent, index)
 
     def ordered(loader, node):
         (pairs,) = loader.construct_sequence(node, deep=True)
@@ -313,6 +332,12 @@ def _zoo_yaml(path: Path, file: Path) -> dict:
         raise _refuse(path, f"cannot read RL Zoo's settings in {file} safely: {first[:160]}") \
             from None
     return out if isinstance(out, dict) else {}
+
+
+def _short(value, limit: int = 120) -> str:
+    """A value from a foreign file, as it goes into an error line: repr, cut to ``limit``."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def zoo_folder(path: Path) -> Path | None:
@@ -334,7 +359,8 @@ def check_normalization(path: Path) -> Path | None:
     folder = zoo_folder(path)
     normalize = _zoo_yaml(path, folder / "config.yml").get("normalize") if folder else None
     if pickles or normalize:
-        what = pickles[0] if pickles else f"normalize: {normalize} in {folder / 'config.yml'}"
+        what = pickles[0] if pickles else (f"normalize: {_short(normalize)} in "
+                                           f"{folder / 'config.yml'}")
         raise _refuse(path, f"it was trained with VecNormalize ({what}): its observations were "
                             "normalised by running statistics that live only in a pickle, "
                             "which this repo never unpickles, and without them the weights see "
@@ -351,7 +377,8 @@ def check_zoo_env(path: Path, folder: Path, env_config: EnvConfig) -> None:
     kwargs = (args.get("env_kwargs") if "env_kwargs" not in config else None) or \
         config.get("env_kwargs") or {}
     if not isinstance(kwargs, dict):
-        raise _refuse(path, f"RL Zoo's env_kwargs in {folder} are not a mapping: {kwargs!r}")
+        raise _refuse(path, f"RL Zoo's env_kwargs in {folder} are not a mapping: "
+                            f"{_short(kwargs)}")
     try:
         trained = EnvConfig().merged({k: v for k, v in kwargs.items() if k not in NOT_CONFIG})
     except UserError as exc:
@@ -360,8 +387,8 @@ def check_zoo_env(path: Path, folder: Path, env_config: EnvConfig) -> None:
     diff = [k for k in a if a[k] != b[k]]
     if diff:
         k = diff[0]
-        raise _refuse(path, f"RL Zoo trained it with {k} = {a[k]!r} ({folder / 'config.yml'}) "
-                            f"but the env config says {b[k]!r}; add --env.{k.replace('_', '-')} "
+        raise _refuse(path, f"RL Zoo trained it with {k} = {_short(a[k])} ({folder / 'config.yml'}) "
+                            f"but the env config says {_short(b[k])}; add --env.{k.replace('_', '-')} "
                             "to match")
 
 

@@ -116,10 +116,16 @@ def file_lock(lock_path: Path, what: str) -> Iterator[None]:
             holder = f.read().strip() or "?"
             raise UserError(f"{lock_path.parent}: {what} is in use by another process (pid "
                             f"{holder}); wait for it to finish") from None
-        f.seek(0)
-        f.truncate()
-        f.write(str(os.getpid()))
-        f.flush()
+        try:  # the holder's pid, for the refusal above; a full disk here is one line too
+            f.seek(0)
+            f.truncate()
+            f.write(str(os.getpid()))
+            f.flush()
+        except OSError as exc:
+            err = user_error_for(lock_path, exc)
+            if err is not None:
+                raise err from exc
+            raise
         yield
     finally:
         f.close()

@@ -431,13 +431,23 @@ def _infer_hint(model_path: Path) -> str:
         dim = None
     if dim is None:
         return "."
-    known = {sum(OBS_FEATURES[x] for x in f): f for f in (OBS_12, OBS_15, OBS_29)}
-    guess = known.get(dim)
-    if guess:
-        return (f". The model's observation is {dim}-D, which matches the features "
-                f"{', '.join(guess)}; adopt it with `uv run eval.py --adopt {model_path} "
-                f"--name NAME --env.obs-features {' '.join(guess)}` (docs/env.md).")
+    flags = obs_flags_for(dim)
+    if flags:
+        return (f". The model's observation is {dim}-D, what {flags} gives; adopt it with "
+                f"`uv run eval.py --adopt {model_path} --name NAME {flags}` (docs/env.md).")
     return f". The model's observation is {dim}-D."
+
+
+def obs_flags_for(dim: int) -> str | None:
+    """The --env.* flags whose observation is ``dim``-D (a named feature set, stacked if need
+    be), or None: the one hint for a model whose observation size does not fit."""
+    known = {sum(OBS_FEATURES[f] for f in feats): feats for feats in (OBS_12, OBS_15, OBS_29)}
+    for stack in range(1, 17):
+        if dim % stack == 0 and dim // stack in known:
+            feats = known[dim // stack]
+            return f"--env.obs-features {' '.join(feats)}" + (
+                f" --env.obs-stack {stack}" if stack > 1 else "")
+    return None
 
 
 def _archive_hint() -> str:
@@ -489,6 +499,18 @@ class _NoOptimizer:
         pass
 
 
+def check_finite_weights(state: dict, model_path: Path) -> None:
+    """ModelError naming the first tensor that holds NaN or inf: such a policy's first action
+    would end an evaluation mid-episode (adopt refuses them the same way)."""
+    import torch
+
+    for key, value in state.items():
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(
+                torch.isfinite(value).all()):
+            raise ModelError(f"{model_path}: cannot load model ({key} holds NaN or infinite "
+                             "values)")
+
+
 def load_policy(model_path: str | Path, device: str = "cpu"):
     """-> (policy, env config dict, sidecar). The policy (an SB3 ``ActorCriticPolicy``, with
     ``predict(obs, deterministic)``; no optimizer: see ``_NoOptimizer``) is rebuilt from the
@@ -509,6 +531,7 @@ def load_policy(model_path: str | Path, device: str = "cpu"):
             f"{model_path}: the model takes a {found}-D observation but its sidecar's features "
             f"({', '.join(env_config.obs_features)}) make {expected}-D; the sidecar does not "
             "belong to this model")
+    check_finite_weights(state, model_path)
     policy = ActorCriticPolicy(obs_space, act_space, lambda _: 0.0, **policy_kwargs_of(side),
                                optimizer_class=_NoOptimizer)
     try:

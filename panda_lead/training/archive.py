@@ -39,7 +39,15 @@ def check_archive_free(name: str, force: bool, flag: str = "--archive") -> None:
     ``flag``, the option that chose the name (train.py's --archive, eval.py --adopt's --name)."""
     path = archive_path(name)
     state = pair_state(path)
-    if state == "absent" or force:
+    if force:
+        return
+    card = path.with_suffix(".md")
+    if state == "absent":
+        # The card is written too: a NAME.md alone (notes, a card whose pair was moved) is
+        # someone's file, never replaced without --force.
+        if card.exists() or card.is_symlink():
+            raise UserError(f"{card} exists (a card without its model); choose another name, "
+                            "or add --force to replace it")
         return
     if state == "valid":
         raise UserError(f"{path} exists; choose another {flag} name, or add --force to "
