@@ -156,3 +156,290 @@ def test_load_set_keeps_the_traceback_of_a_bug(monkeypatch, tmp_path, played):
     monkeypatch.undo()
     with pytest.raises(UserError, match="no rollouts under"):
         load_set("nothing", tmp_path)
+
+
+# --- archive names, locks, models (#1, #26, #27, #28, #17) -----------------------------------
+
+def test_an_archive_name_whose_card_alone_exists_is_refused(tmp_path, monkeypatch):
+    """#1: `--archive mycard` replaced archive/mycard.md when no mycard.zip/.json existed."""
+    from panda_lead.training.archive import check_archive_free
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "archive").mkdir()
+    (tmp_path / "archive" / "mycard.md").write_text("my notes\n")
+    with pytest.raises(UserError, match=r"archive/mycard.md exists .*add --force"):
+        check_archive_free("mycard", force=False)
+    check_archive_free("mycard", force=True)
+    check_archive_free("free_name", force=False)
+    assert (tmp_path / "archive" / "mycard.md").read_text() == "my notes\n"
+
+
+def test_a_full_disk_while_taking_a_lock_is_one_line(tmp_path, monkeypatch):
+    """#26: file_lock wrote and flushed its pid without user_error_for: an OSError traceback."""
+    import errno
+    import os
+
+    from panda_lead import atomicio
+
+    class FullDisk:
+        def __init__(self, f):
+            self.f = f
+
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+
+        def write(self, text):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    real_open = open
+    monkeypatch.setattr(atomicio, "open", lambda *a, **k: FullDisk(real_open(*a, **k)),
+                        raising=False)
+    with pytest.raises(UserError, match=r"cannot write .*\.lock: No space left on device"):
+        with atomicio.file_lock(tmp_path / "p" / ".lock", "the rollout set"):
+            pass
+
+
+def _poison_first_weight(raw: bytes) -> bytes:
+    import io
+
+    import torch
+
+    state = torch.load(io.BytesIO(raw), weights_only=True)
+    state["action_net.weight"][0, 0] = float("nan")
+    out = io.BytesIO()
+    torch.save(state, out)
+    return out.getvalue()
+
+
+def test_a_bound_model_with_nan_weights_is_refused_on_load(tmp_path):
+    """#28: NaN weights passed load_policy and failed mid-episode ('action must be finite')."""
+    from stable_baselines3 import PPO
+    from test_adopt import Spaces, edit_member
+
+    from panda_lead import models
+    from panda_lead.config import EnvConfig
+
+    obs_space, _ = models.spaces_for(EnvConfig())
+    ppo = PPO("MlpPolicy", Spaces(obs_space.shape[0]), n_steps=64, batch_size=64, device="cpu")
+    path = models.save_model(ppo, tmp_path / "m.zip",
+                             {"env_config": EnvConfig().to_dict(), "timesteps": 0})
+    models.load_policy(path)  # as saved: loads
+    edit_member(path, "policy.pth", _poison_first_weight)
+    models.bind_sidecar(path)  # the hash made to match, as a careless hand would
+    with pytest.raises(models.ModelError, match="action_net.weight holds NaN or infinite"):
+        models.load_policy(path)
+
+
+def test_the_observation_size_hint_knows_stacked_features(tmp_path):
+    """Issue 38: the observation-size hint was written twice (models, adopt), and the model
+    loader's copy did not know stacked observations. One definition: models.obs_flags_for."""
+    from test_adopt import save_ppo
+
+    from panda_lead import models
+    from panda_lead.config import OBS_15
+
+    path = save_ppo(tmp_path / "stacked.zip", obs_dim=30)  # OBS_15 x 2, no sidecar
+    with pytest.raises(models.ModelError,
+                       match=f"--env.obs-features {' '.join(OBS_15)} --env.obs-stack 2"):
+        models.read_sidecar(path)
+
+
+def _edit_state(key_edit):
+    def edit(raw: bytes) -> bytes:
+        import io
+
+        import torch
+
+        state = torch.load(io.BytesIO(raw), weights_only=True)
+        key_edit(state)
+        out = io.BytesIO()
+        torch.save(state, out)
+        return out.getvalue()
+    return edit
+
+
+@pytest.mark.parametrize("case,match", [
+    ("extra_key", "mlp_extractor.policy_net.abc.weight .* no layer of an SB3 MLP"),
+    ("flat_first_layer", r"mlp_extractor.policy_net.0.weight of shape \(960,\)"),
+    ("deep_data", "nests too deeply"),
+])
+def test_odd_weights_or_data_are_refused_by_adopt(tmp_path, case, match):
+    """#27: an extra weight key (ValueError), a 1-D first layer (IndexError), deeply nested
+    data (RecursionError) were tracebacks."""
+    from test_adopt import edit_member, refused, save_ppo
+
+    path = save_ppo(tmp_path / f"{case}.zip")
+    if case == "extra_key":
+        edit_member(path, "policy.pth", _edit_state(lambda s: s.__setitem__(
+            "mlp_extractor.policy_net.abc.weight", s["mlp_extractor.policy_net.0.weight"])))
+    elif case == "flat_first_layer":
+        edit_member(path, "policy.pth", _edit_state(lambda s: s.__setitem__(
+            "mlp_extractor.policy_net.0.weight",
+            s["mlp_extractor.policy_net.0.weight"].reshape(-1))))
+    else:
+        edit_member(path, "data", lambda raw: raw[:-1] + b', "x": ' + b"[" * 100_000
+                    + b"]" * 100_000 + b"}")
+    refused(path, match)
+
+
+def test_an_rl_zoo_alias_bomb_is_refused_before_it_expands(tmp_path):
+    """#17: SafeLoader expanded aliases, then formatted the value into the error (a 535-byte
+    file: MemoryError at a 4 GB cap). Six levels of ten here: a million values if expanded."""
+    from test_adopt import refused, save_ppo, zoo_yaml
+
+    run = tmp_path / "logs" / "ppo" / "PandaLead-v0_1"
+    path = save_ppo(run / "PandaLead-v0.zip")
+    params = run / "PandaLead-v0"
+    params.mkdir()
+    (params / "args.yml").write_text(zoo_yaml(env_kwargs="null"))
+    levels = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    for k in range(1, 7):
+        levels.append(f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 10) + "]")
+    (params / "config.yml").write_text("\n".join(levels) + "\nnormalize: *a6\n")
+    message = refused(path, "uses a YAML alias")
+    assert len(message) < 600
+
+
+# --- a run folder: progress.csv, best.json, train.py's values (#5, #6, #24, #25, #34) --------
+
+def test_progress_csv_survives_a_crash_while_it_is_continued(tmp_path, monkeypatch):
+    """#5: on --resume, SB3's "w+" open truncated progress.csv before its rows were written
+    back: a crash in between emptied the run's log (3,527 -> 0 bytes)."""
+    from stable_baselines3.common import logger as sb3_logger
+
+    from panda_lead.training.callbacks import _AppendingCSV
+
+    path = tmp_path / "progress.csv"
+    rows = "eval/mean_error_cm,time/total_timesteps\n5.1,512\n4.2,1024\n"
+    path.write_text(rows)
+
+    class CrashAfterOpen(sb3_logger.CSVOutputFormat):
+        def __init__(self, filename):
+            super().__init__(filename)
+            raise RuntimeError("killed right after SB3's open")
+
+    monkeypatch.setattr(sb3_logger, "CSVOutputFormat", CrashAfterOpen)
+    with pytest.raises(RuntimeError, match="killed"):
+        _AppendingCSV(path)
+    assert path.read_text() == rows
+    monkeypatch.undo()
+    out = _AppendingCSV(path)
+    out.write({"eval/mean_error_cm": 3.3, "time/total_timesteps": 1536}, {"eval/mean_error_cm":
+              None, "time/total_timesteps": None})
+    out.close()
+    assert path.read_text() == rows + "3.3,1536\n"
+
+
+@pytest.mark.parametrize("damage", ["folder", "latin1"])
+def test_a_progress_csv_that_cannot_be_continued_is_one_line(tmp_path, damage):
+    """#24: progress.csv as a folder, or not UTF-8: tracebacks on --resume."""
+    from panda_lead.training.callbacks import _AppendingCSV
+
+    path = tmp_path / "progress.csv"
+    if damage == "folder":
+        path.mkdir()
+    else:
+        path.write_bytes(b"eval/mean_error_cm\n\xe9\xff\n")
+    with pytest.raises(UserError, match="progress.csv.*move it away to resume"):
+        _AppendingCSV(path)
+
+
+@pytest.fixture
+def run_with_best(tmp_path):
+    """A run folder whose best_model.zip (an untrained policy) records a 12.68 cm evaluation
+    in its sidecar, saved as train.py saves it."""
+    from stable_baselines3 import PPO
+    from test_adopt import Spaces
+
+    from panda_lead import models
+    from panda_lead.config import EnvConfig
+
+    obs_space, _ = models.spaces_for(EnvConfig())
+    ppo = PPO("MlpPolicy", Spaces(obs_space.shape[0]), n_steps=64, batch_size=64, device="cpu")
+    models.save_model(ppo, tmp_path / "best_model.zip",
+                      {"env_config": EnvConfig().to_dict(), "timesteps": 2048,
+                       "eval_metrics": {"mean_error_cm": 12.68, "in_band_pct": 31.0}})
+    return tmp_path
+
+
+@pytest.mark.parametrize("best_json", [None, "{", '{"timesteps": 512, "mean_error_cm": -1.0}',
+                                       '{"timesteps": 512, "mean_error_cm": 0.5}'])
+def test_best_json_is_rebuilt_from_the_best_models_sidecar(run_with_best, best_json):
+    """#6: best.json was bound to nothing. Missing, the resumed run's first evaluation replaced
+    best_model.zip, better or not; edited to -1, no best was saved again; 0.5 was summarised
+    as 0.5 while the bound sidecar says 12.68 cm. #24: '{' was a traceback."""
+    from panda_lead.models import file_sha256
+    from panda_lead.training.callbacks import resume_best
+
+    best_file = run_with_best / "best.json"
+    if best_json is not None:
+        best_file.write_text(best_json)
+    assert resume_best(run_with_best) == (12.68, 2048)
+    written = json.loads(best_file.read_text())
+    assert written["mean_error_cm"] == 12.68 and written["timesteps"] == 2048
+    assert written["model_sha256"] == file_sha256(run_with_best / "best_model.zip")
+
+
+def test_a_best_model_that_cannot_be_checked_stops_the_resume(run_with_best):
+    from panda_lead.training.callbacks import resume_best
+
+    side = run_with_best / "best_model.json"
+    side.write_text(side.read_text().replace("12.68", "0.5"))
+    with pytest.raises(UserError, match="its best model cannot be checked"):
+        resume_best(run_with_best)
+
+
+def test_without_a_best_model_every_evaluation_may_be_the_best(tmp_path):
+    from panda_lead.training.callbacks import resume_best
+
+    (tmp_path / "best.json").write_text('{"mean_error_cm": 0.5}')
+    assert resume_best(tmp_path) == (math.inf, None)
+
+
+@pytest.mark.parametrize("field,value", [
+    ("seed", -1), ("seed", 2**64), ("torch_threads", 1_000_000), ("n_workers", 10**6),
+    ("eval_steps", 10**9), ("timesteps", 10**24),
+])
+def test_train_values_beyond_their_bounds_are_refused_before_any_folder(tmp_path, field, value):
+    """#25, #34: --seed -1 / 2^64 and --torch-threads 10^6 were tracebacks that left a run
+    folder; --eval-steps 10^9 was refused only after training started; --timesteps 10^24 ran
+    (and its note named a float-rounded step count)."""
+    from panda_lead.cli.train import parse_args
+
+    with pytest.raises(UserError, match=f"--{field.replace('_', '-')} must be an integer in"):
+        parse_args([f"--{field.replace('_', '-')}", str(value), "--runs-dir", str(tmp_path)])
+    assert not list(tmp_path.iterdir())
+
+
+def test_memory_estimate_counts_stacked_observations():
+    """Issue 38: memory_estimate ignored obs_stack (a stack of 16 needs 16x the buffer)."""
+    from panda_lead.config import OBS_FEATURES, EnvConfig
+    from panda_lead.training.config import TrainConfig, memory_estimate
+
+    one = TrainConfig(n_envs=1024, n_steps=1024)
+    stacked = TrainConfig(env=EnvConfig(obs_stack=16), n_envs=1024, n_steps=1024)
+    extra = memory_estimate(stacked) - memory_estimate(one)
+    obs = sum(OBS_FEATURES[f] for f in EnvConfig().obs_features)
+    # the rollout buffer's observations (float32) grow by 15 frames; the first layer too
+    assert extra >= 1024 * 1024 * 15 * obs * 4
+
+
+def test_the_vec_env_is_closed_when_training_fails_after_it_is_made(tmp_path, monkeypatch):
+    """Issue 38: vec.close() was outside any finally: an error between making the envs and
+    the end of learning left them (and a subproc env's workers) open."""
+    from panda_lead.cli.train import parse_args
+    from panda_lead.training import loop
+
+    closed = []
+
+    class Envs:
+        def close(self):
+            closed.append(True)
+
+    monkeypatch.setattr(loop, "make_vec_env", lambda *a, **k: Envs())
+    args = parse_args(["--timesteps", "512", "--n-envs", "2", "--n-steps", "64", "--batch-size",
+                       "64", "--eval-freq", "0", "--curriculum-steps", "0", "--no-progress",
+                       "--runs-dir", str(tmp_path)])
+    with pytest.raises(Exception):  # noqa: B017 (SB3 refuses the stand-in: any error will do)
+        loop.train(args)
+    assert closed == [True]

@@ -5,6 +5,8 @@ progress.csv logger. Each callback is a plain module-level class that takes its 
 from __future__ import annotations
 
 import json
+import math
+import os
 import signal
 import sys
 import threading
@@ -72,12 +74,13 @@ class TrackingEval(BaseCallback):
     False to stop the run (sweep.py's pruner). Ties keep the earlier model: only a strictly
     lower error replaces the best."""
 
-    def __init__(self, config, run_dir: Path, clock: RunClock, save_best, on_eval=None):
+    def __init__(self, config, run_dir: Path, clock: RunClock, save_best, on_eval=None,
+                 best: tuple[float, int | None] = (float("inf"), None)):
         super().__init__()
         self.config, self.run_dir, self.clock = config, run_dir, clock
         self.save_best, self.on_eval = save_best, on_eval
-        self.best = float("inf")
-        self.best_step: int | None = None
+        # (error, step) of the best so far: a resumed run's comes from resume_best
+        self.best, self.best_step = best
         self.last_eval = 0
         self.baselines: dict[str, dict] = {}
 
@@ -91,10 +94,6 @@ class TrackingEval(BaseCallback):
         as_lead = config.env.replace(action="lead")
         self.baselines = {"classical": evaluate(classical, as_lead, config.eval_steps),
                           "analytic": evaluate(make_analytic(), as_lead, config.eval_steps)}
-        best_file = self.run_dir / "best.json"
-        if best_file.is_file():  # resuming: keep the best so far
-            best = json.loads(best_file.read_text())
-            self.best, self.best_step = float(best["mean_error_cm"]), best.get("timesteps")
 
     def _on_step(self) -> bool:
         config = self.config
@@ -224,18 +223,90 @@ class SpeedCurriculum(BaseCallback):
         return True
 
 
+def best_record(side: dict) -> dict:
+    """best.json's content for a best model's (verified) sidecar: its step, its evaluation and
+    its SHA-256, so that best.json is bound to the model it describes."""
+    return {"timesteps": side["timesteps"], **side["eval_metrics"],
+            "model_sha256": side["model_sha256"]}
+
+
+def resume_best(run_dir: Path) -> tuple[float, int | None]:
+    """(error, step) of a resumed run's best so far, from best_model.zip's own sidecar (its
+    eval_metrics, bound to the zip by its SHA-256), never from best.json alone: best.json is a
+    file anyone can edit or lose. A best.json that is missing, damaged or says anything else is
+    rewritten from the sidecar (with a note); a best model whose sidecar cannot be checked is
+    one error line, so that a better best is never overwritten by guesswork."""
+    from ..errors import UserError
+    from ..models import ModelError, verify, write_json_atomic
+
+    best_zip, best_file = run_dir / "best_model.zip", run_dir / "best.json"
+    if not best_zip.exists():
+        if best_file.exists():
+            say(f"note: {best_file} describes no best_model.zip; the next evaluation is the "
+                "best so far")
+        return float("inf"), None
+    try:
+        side = verify(best_zip)
+    except ModelError as exc:
+        raise UserError(f"--resume {run_dir}: its best model cannot be checked ({exc}); restore "
+                        "its sidecar, or move best_model.zip away to resume without it") from None
+    metrics = side.get("eval_metrics")
+    error = metrics.get("mean_error_cm") if isinstance(metrics, dict) else None
+    if isinstance(error, bool) or not isinstance(error, int | float) or not math.isfinite(error):
+        raise UserError(f"--resume {run_dir}: best_model.zip's sidecar records no evaluation "
+                        "error (eval_metrics); move it away to resume without it")
+    want = best_record(side)
+    try:
+        have = json.loads(best_file.read_text()) if best_file.is_file() else None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        have = "damaged"
+    if have != want:
+        why = ("missing" if have is None else "unreadable" if have == "damaged"
+               else "not what the best model's sidecar says")
+        write_json_atomic(best_file, want)
+        say(f"note: {best_file} was {why}; rewritten from best_model.zip's sidecar "
+            f"({error:.2f} cm at {side['timesteps']:,} steps)")
+    return float(error), side["timesteps"]
+
+
+def read_progress(path: Path) -> str:
+    """A run's progress.csv as text ("" when absent); UserError when it cannot be continued."""
+    from ..errors import UserError
+
+    if path.is_dir() or (path.exists() and not path.is_file()):
+        raise UserError(f"{path} is not a file (the run's log goes there); move it away to "
+                        "resume")
+    if not path.exists():
+        return ""
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}), so the "
+                        "run's log cannot be continued; move it away to resume") from None
+
+
 class _AppendingCSV:
-    """SB3's CSV writer, continuing an existing progress.csv instead of truncating it."""
+    """SB3's CSV writer, continuing an existing progress.csv instead of truncating it.
+
+    SB3 opens its file with "w+", which truncates: it is opened on a temporary name beside
+    progress.csv, the old rows are copied in, and the temporary is renamed over progress.csv
+    (atomicio), so a crash at any moment leaves the run's whole log under its name."""
 
     def __new__(cls, filename: Path):
         from stable_baselines3.common.logger import CSVOutputFormat
 
-        old = Path(filename).read_text() if Path(filename).is_file() else ""
-        out = CSVOutputFormat(str(filename))  # opens with "w+": truncates
-        if old.strip():
+        from ..atomicio import atomic_write
+
+        path = Path(filename)
+        old = read_progress(path)
+        if not old.strip():
+            return CSVOutputFormat(str(path))
+        with atomic_write(path, ".tmp.csv") as tmp:
+            out = CSVOutputFormat(tmp)  # the open file follows the rename
             out.file.write(old if old.endswith("\n") else old + "\n")
             out.file.flush()
-            out.keys = old.splitlines()[0].split(",")
+            os.fsync(out.file.fileno())
+        out.keys = old.splitlines()[0].split(",")
         return out
 
 

@@ -13,8 +13,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
-from ..config import EnvConfig
+from ..config import MAX_EPISODE_STEPS, EnvConfig
 from ..errors import UserError, check_plain_name
+
+
+MAX_TIMESTEPS = 10**12  # a typo's bound, not a budget: years of training on any machine here
+MAX_THREADS = 1024
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,15 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
                 raise UserError(f"--{flag(name)} must be an integer >= {low}, got {v!r}")
+        # Upper bounds, so that a typo is one line before a run folder is made: numpy seeds
+        # take 0..2^32-1, thread pools beyond a thousand fail inside MuJoCo or torch, an
+        # evaluation episode is at most MAX_EPISODE_STEPS, and 10^12 steps is years of training.
+        for name, high in (("seed", 2**32 - 1), ("timesteps", MAX_TIMESTEPS),
+                           ("torch_threads", MAX_THREADS), ("n_workers", MAX_THREADS),
+                           ("eval_steps", MAX_EPISODE_STEPS)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= high:
+                raise UserError(f"--{flag(name)} must be an integer in 0..{high:,}, got {v!r}")
         if self.n_steps * self.n_envs < 2:
             raise UserError("a PPO rollout needs at least 2 steps: raise --n-steps or --n-envs")
         for name, lo, hi, lo_open in (("gamma", 0, 1, True), ("gae_lambda", 0, 1, False),
@@ -233,7 +246,7 @@ def memory_estimate(config: TrainConfig) -> int:
     Enough to refuse a typo (a million envs, a 200,000-wide layer) before anything is created."""
     from ..config import OBS_FEATURES
 
-    obs = sum(OBS_FEATURES[f] for f in config.env.obs_features)
+    obs = sum(OBS_FEATURES[f] for f in config.env.obs_features) * config.env.obs_stack
     act = 7 if config.env.action != "lead" else 3
     buffer = config.n_envs * config.n_steps * (obs + 2 * act + 6) * 4
     layers = [obs, *config.net_arch]

@@ -14,6 +14,7 @@ import shlex
 import signal
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from ..models import (
     cpu_name,
     git_commit,
     load_training_state,
+    read_sidecar,
     save_model,
     verify,
     write_json_atomic,
@@ -39,7 +41,9 @@ from .callbacks import (
     SpeedCurriculum,
     TrackingEval,
     TrainingDiverged,
+    best_record,
     make_logger,
+    resume_best,
 )
 from .config import RESUME_MAY_CHANGE, TrainArgs, TrainConfig, check_fits, read_run_config
 from .envs import make_vec_env
@@ -153,18 +157,21 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
         read_run_config(run_dir)
     else:
         run_dir = _new_run_dir(args.runs_dir, args.name or args.preset or "lead", args.seed)
-    with folder_lock(run_dir, "the run folder"):
-        return _train_locked(args, config, run_dir, on_eval, extra)
+    with folder_lock(run_dir, "the run folder"), ExitStack() as cleanup:
+        return _train_locked(args, config, run_dir, on_eval, extra, cleanup)
 
 
-def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, extra) -> Path:
+def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, extra,
+                  cleanup: ExitStack) -> Path:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.utils import set_random_seed
 
+    best = (math.inf, None)
     if args.resume:
         ckpt, ckpt_side = _resume_point(run_dir, config)
         clock = RunClock(before_s=float(ckpt_side.get("wall_time_s") or 0.0))
+        best = resume_best(run_dir)  # before any work: a damaged best is one line
     else:
         write_json_atomic(run_dir / "config.json",
                           {**config.to_dict(), **({"extra": extra} if extra else {})})
@@ -182,13 +189,14 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
         return save_model(model, path, sidecar(steps, **more))
 
     def save_best(model, steps: int, metrics: dict) -> None:
-        save(model, run_dir / "best_model.zip", steps, eval_metrics=metrics)
-        write_json_atomic(run_dir / "best.json", {"timesteps": steps, **metrics})
+        path = save(model, run_dir / "best_model.zip", steps, eval_metrics=metrics)
+        write_json_atomic(run_dir / "best.json", best_record(read_sidecar(path)))  # bound
 
     set_random_seed(config.seed)
     torch.set_num_threads(config.torch_threads)
+    logger = make_logger(run_dir / "tb")  # a progress.csv that cannot be continued: one line
     vec = make_vec_env(config.env, config.n_envs, config.seed, config.vec_env, config.n_workers)
-    logger = make_logger(run_dir / "tb")
+    cleanup.callback(vec.close)  # closed on any error from here on (and below on success)
     ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",
                                            "gae_lambda", "learning_rate", "clip_range", "ent_coef",
                                            "target_kl")}
@@ -211,7 +219,7 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     model.set_logger(logger)
     remaining = config.timesteps - model.num_timesteps
     per_rollout = config.n_steps * config.n_envs
-    real = math.ceil(max(remaining, 0) / per_rollout) * per_rollout
+    real = -(-max(remaining, 0) // per_rollout) * per_rollout  # integers: no float rounding
     if remaining > 0 and real != remaining:
         print(f"note: PPO collects whole rollouts of {config.n_steps} x {config.n_envs} = "
               f"{per_rollout:,} steps, so this run ends at {model.num_timesteps + real:,} steps "
@@ -221,7 +229,7 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
               f"{config.curriculum_start_speed:g} m/s, the cap rising to none at "
               f"{config.curriculum_steps:,} steps (--curriculum-steps 0 turns it off)")
     signals = SignalFlag()
-    tracker = TrackingEval(config, run_dir, clock, save_best, on_eval)
+    tracker = TrackingEval(config, run_dir, clock, save_best, on_eval, best)
     callbacks = [tracker, FiniteWeights(),
                  AtomicCheckpoint(max(config.checkpoint_freq // config.n_envs, 1),
                                   str(run_dir / "checkpoints"), save),
@@ -243,7 +251,7 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
         except TrainingDiverged as exc:
             diverged = exc
         interrupted = interrupted or signals.received
-    vec.close()
+    cleanup.close()  # vec.close()
     if diverged is not None:
         raise UserError(f"training diverged at {diverged.steps:,} steps (the policy's weights "
                         "are no longer finite: reward weights or the learning rate are too "
