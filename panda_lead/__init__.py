@@ -6,7 +6,8 @@
 points are strings, so registering imports neither MuJoCo nor the env until one is made.
 
 The library, one concept per module, in the order data flows through it:
-trajectory -> core (+ clearance) -> config -> task -> env, vector, sb3_vecenv -> controllers
+trajectory, ikconfig -> config -> core (+ clearance) -> task (+ the single env's fast path,
+core_one, task_one) -> env, vector, sb3_vecenv -> controllers
 (+ ilc) -> rollout -> models -> training, metrics, video -> cli.
 """
 
