@@ -443,3 +443,20 @@ def test_the_vec_env_is_closed_when_training_fails_after_it_is_made(tmp_path, mo
     with pytest.raises(Exception):  # noqa: B017 (SB3 refuses the stand-in: any error will do)
         loop.train(args)
     assert closed == [True]
+
+
+# --- eval.py's random seed, and seeds stated once (issue 38) ---------------------------------
+
+def test_a_random_episode_seed_is_a_test_seed(monkeypatch):
+    """Issue 38: a random --seed was drawn from 0..2^31-1: a training trajectory 99.5% of the
+    time. It is drawn from the test set, and --help says so."""
+    from panda_lead.cli import run
+    from panda_lead.seeds import TEST_SEEDS, TRAIN_SEED_LOW
+
+    rng = np.random.default_rng(0)
+    drawn = {run.random_test_seed(rng) for _ in range(2000)}
+    assert drawn <= set(TEST_SEEDS) and len(drawn) > 800
+    assert max(drawn) < TRAIN_SEED_LOW
+    assert "(default: a random test seed, 0-999," in Path(run.__file__).read_text()  # --help
+    with pytest.raises(UserError, match="--seed must be an integer in 0..9223372036854775807"):
+        run._validate(run.Args(seed=-1))
