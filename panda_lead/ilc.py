@@ -29,7 +29,7 @@ import numpy as np
 
 from .config import EnvConfig
 from .errors import UserError, check_typed_fields
-from .rollout import Rollout, iter_record
+from .rollout import iter_record
 
 INITS = ("analytic", "zero", "policy")
 
@@ -84,8 +84,26 @@ def replay_controller(leads: np.ndarray, seeds, max_lead: float):
     return act
 
 
-def _play(config: EnvConfig, act, seeds, shapes, nthread: int) -> list[Rollout]:
-    return list(iter_record(config, act, seeds, shapes, nthread=nthread))
+def _play(config: EnvConfig, act, seeds, shapes, nthread: int
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One replay of every seed, streamed (no rollout is kept: memory is that of one batch
+    plus these arrays, ~100 kB less per seed than a list of rollouts) -> (leads (N, T, 3),
+    errors target - tip (N, T, 3), mean error per seed in m). An episode that ends early (an
+    unstable simulation, a self-collision the env terminates on) is charged as metrics charges
+    any failure (metrics.pairing.charged: the arm frozen where it failed, no lead after), so a
+    failed replay counts at full length and is never kept as an improvement by accident."""
+    from .metrics.pairing import charged
+
+    row = {s: i for i, s in enumerate(seeds)}
+    steps = config.episode_steps
+    leads, errors = np.zeros((len(seeds), steps, 3)), np.zeros((len(seeds), steps, 3))
+    mean = np.empty(len(seeds))
+    for r in iter_record(config, act, seeds, shapes, nthread=nthread):
+        r, _ = charged(r)
+        i = row[r.seed]
+        leads[i], errors[i] = r.lead, r.target_pos - r.ee_pos
+        mean[i] = r.error.mean()
+    return leads, errors, mean
 
 
 def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthread: int = 0,
@@ -99,10 +117,7 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
     if len(set(seeds)) != len(seeds):
         raise UserError("the ILC oracle needs each trajectory seed once")
     bound = config.max_lead
-    rollouts = _play(config, init_act, seeds, shapes, nthread)
-    leads = np.stack([r.lead for r in rollouts])
-    best_err = np.array([r.error.mean() for r in rollouts])
-    errors = np.stack([r.target_pos - r.ee_pos for r in rollouts])
+    leads, errors, best_err = _play(config, init_act, seeds, shapes, nthread)
     history = [float(100 * best_err.mean())]
     if on_iteration:
         on_iteration(0, history[-1])
@@ -111,14 +126,14 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
     gain = np.full((len(seeds), 1, 1), ilc.gain)
     for j in range(1, ilc.iterations + 1):
         trial = np.clip(leads + gain * smooth(errors, ilc.taps)[:, ahead], -bound, bound)
-        played = _play(config, replay_controller(trial, seeds, bound), seeds, shapes, nthread)
-        err = np.array([r.error.mean() for r in played])
+        _, played_errors, err = _play(config, replay_controller(trial, seeds, bound), seeds,
+                                      shapes, nthread)
         better = err < best_err  # keep only improvements, trajectory by trajectory
         leads[better] = trial[better]
         best_err[better] = err[better]
         gain[~better] *= 0.5
-        for i in np.flatnonzero(better):
-            errors[i] = played[i].target_pos - played[i].ee_pos
+        errors[better] = played_errors[better]
+        del played_errors
         history.append(float(100 * best_err.mean()))
         if on_iteration:
             on_iteration(j, history[-1])

@@ -460,3 +460,59 @@ def test_a_random_episode_seed_is_a_test_seed(monkeypatch):
     assert "(default: a random test seed, 0-999," in Path(run.__file__).read_text()  # --help
     with pytest.raises(UserError, match="--seed must be an integer in 0..9223372036854775807"):
         run._validate(run.Args(seed=-1))
+
+
+# --- the ILC oracle: streamed, and a replay that ends early is charged (#19; issue 38) --------
+
+def _oracle_with(monkeypatch, played, edit=lambda r: r, check=lambda: None):
+    """learn_leads on seeds 0-3 with iter_record replaced by the played episodes (copied,
+    ``edit``-ed), ``check()`` run before each episode is handed over."""
+    from panda_lead import ilc
+    from panda_lead.config import EnvConfig
+
+    def fake_iter_record(config, act, seeds, shapes, **kw):
+        for r in played:
+            check()
+            yield edit(copy(r))
+
+    monkeypatch.setattr(ilc, "iter_record", fake_iter_record)
+    config = EnvConfig().replace(episode_steps=STEPS)
+    return ilc.learn_leads(config, [0, 1, 2, 3], None, ilc.ILCConfig(iterations=2), None)
+
+
+def test_an_ilc_replay_that_ends_early_is_charged_not_a_crash(monkeypatch, played):
+    """Issue 38: a replay that ended early (shorter rollout) crashed np.stack."""
+    def fail_seed_1(r):
+        if r.seed == 1:
+            for k in keys(r):
+                setattr(r, k, getattr(r, k)[:20])
+            r.meta["failure"] = "unstable"
+        return r
+
+    leads, history = _oracle_with(monkeypatch, played, fail_seed_1)
+    assert leads.shape == (4, STEPS, 3) and all(math.isfinite(h) for h in history)
+    clean, _ = _oracle_with(monkeypatch, played)
+    # seed 1 is charged (frozen tip after 0.2 s): a higher first-replay error than played whole
+    assert history[0] > _oracle_with(monkeypatch, played)[1][0]
+    assert np.array_equal(leads[0], clean[0])
+
+
+def test_the_ilc_oracle_keeps_no_list_of_rollouts(monkeypatch, played):
+    """#19: learn_leads listed every rollout of the set at once (10-15 GB at the 100,000-seed
+    cap); it now holds at most the one it is reading."""
+    import gc
+    import weakref
+
+    handed: list = []
+    alive_at_handover: list[int] = []
+
+    def check():
+        gc.collect()
+        alive_at_handover.append(sum(ref() is not None for ref in handed))
+
+    def track(r):
+        handed.append(weakref.ref(r))
+        return r
+
+    _oracle_with(monkeypatch, played, track, check)
+    assert max(alive_at_handover) <= 1
