@@ -7,14 +7,16 @@ bit for bit. ``import panda_lead`` registers it.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import textwrap
+from collections.abc import Mapping
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from .config import EnvConfig, arguments_table, as_config
-from .errors import UserError
+from .errors import UserError, did_you_mean
 from .task_one import LeadTaskOne as SingleTask  # the fast path; task.LeadTask: same episodes
 
 
@@ -37,7 +39,20 @@ class EpisodeStepsSpec:
         self._spec = value
 
 
-class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
+class NotCopyable:
+    """copy.copy, copy.deepcopy and pickle refuse the env in one line (see "Copies" in the
+    single env's manual): its state lives in MuJoCo's C structures and values made lazily, and a
+    copy that silently does not continue the episode is worse than none."""
+
+    def __reduce_ex__(self, protocol):
+        raise TypeError(
+            f"{type(self).__name__} cannot be copied or pickled (its episode state lives in "
+            "MuJoCo's C structures; a copy would not continue the episode): make a new env, "
+            "and replay: reset(seed=s, options={'traj_seed': n}) and the same actions repeat "
+            "an episode bit for bit")
+
+
+class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     """A Franka Panda keeps its tip on a fast target; the action is a lead for the IK target.
 
     Each step (100 Hz) the target moves along an analytic trajectory (`trajectory.py`); the
@@ -51,20 +66,24 @@ class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
     ## Observation space
     ``Box(-inf, inf, (n,), float32)``: the selected features, always in this order:
 
-    | feature     | size | meaning (world frame)                                | divided by |
-    |-------------|------|------------------------------------------------------|------------|
-    | ee_pos      | 3    | tip position (m)                                     | 1          |
-    | ee_vel      | 3    | tip velocity, finite difference over one step (m/s)  | 2.5        |
-    | target_pos  | 3    | target position (m)                                  | 1          |
-    | target_vel  | 3    | target velocity, analytic (m/s)                      | 2.5        |
-    | target_acc  | 3    | target acceleration, analytic (m/s^2)                | 30         |
-    | joint_pos   | 7    | arm joint angles (rad)                               | 1          |
-    | joint_vel   | 7    | arm joint velocities (rad/s)                         | 2.5        |
-    | prev_action | 3    | the previous action, in [-1, 1]                      | 1          |
+    | feature       | size | meaning (world frame)                                | divided by |
+    |---------------|------|------------------------------------------------------|------------|
+    | ee_pos        | 3    | tip position (m)                                     | 1          |
+    | ee_vel        | 3    | tip velocity, finite difference over one step (m/s)  | 2.5        |
+    | target_pos    | 3    | target position (m)                                  | 1          |
+    | target_vel    | 3    | target velocity, analytic (m/s)                      | 2.5        |
+    | target_acc    | 3    | target acceleration, analytic (m/s^2)                | 30         |
+    | joint_pos     | 7    | arm joint angles (rad)                               | 1          |
+    | joint_vel     | 7    | arm joint velocities (rad/s)                         | 2.5        |
+    | prev_action   | 3    | the previous action, in [-1, 1]                      | 1          |
+    | tip_error     | 3    | tip minus target (m)                                 | 0.05       |
+    | tip_error_avg | 3    | its running average, clipped per axis (m; see below) | 0.01       |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
-    gives the index ranges. ``obs_noise`` adds Gaussian noise (std per feature, in the
-    feature's physical unit) to what the policy sees; the IK target is always the true target.
+    gives the index ranges. ``tip_error_avg`` moves each step ``dt/error_avg_time`` of the way
+    towards the tip error clipped per axis at ``error_avg_clip``; it is 0 at reset.
+    ``obs_noise`` adds Gaussian noise (std per feature, in the feature's physical unit) to what
+    the policy sees; the IK target is always the true target.
 
     ## Reward
     A sum of weighted terms, each reported in ``info["reward_terms"]`` (they add up to the
@@ -78,16 +97,37 @@ class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
     The arm at the MJCF "home" keyframe, at rest; the trajectory drawn from ``self.np_random``
     (a seed from the training range, the shape from ``shapes``) unless ``reset(options=...)``
     names ``traj_seed`` (and optionally ``shape``): ``reset(options={"traj_seed": 7})`` plays
-    test trajectory 7.
+    test trajectory 7. ``options`` is a dict of those two keys only: another key (a typo such
+    as ``"trajseed"``), a seed outside 0..2^63-1 or an unknown shape is a one-line
+    ``UserError``, never a silently random trajectory.
 
     ## Episode end
     ``truncated`` after ``episode_steps`` steps: the env precomputes the episode's target path
     at reset, so the length has one home, this setting. ``gymnasium.make("PandaLead-v0",
     episode_steps=500)`` runs 500 steps and its ``spec.max_episode_steps`` says 500; no
-    TimeLimit is registered. Gymnasium's own ``max_episode_steps=N`` adds a TimeLimit, which can
-    only end an episode sooner than ``episode_steps``.
+    TimeLimit is registered. Gymnasium's ``max_episode_steps=N`` (``gymnasium.make``,
+    ``make_vec`` in either mode, or a ``TimeLimit`` you wrap the env in) sets the episode
+    length the same way wherever it is given: given alone it becomes ``episode_steps`` (a
+    TimeLimit's, at the first reset under it, the env finding the TimeLimit among its callers);
+    given beside an ``episode_steps`` that differs, it is refused in one line (a UserError).
     ``terminated`` only for a real failure: a self-collision when ``terminate_on_collision``
     is set, or an unstable simulation (``info["failure"] == "unstable"``, always).
+
+    ## Rendering
+    ``render_mode="rgb_array"``: ``render()`` returns the ``workspace`` camera's frame with the
+    renderer settings of eval.py's videos (no shadows, no floor reflection, no multisampling:
+    in a software renderer such as headless EGL those cost most of a frame), so Gymnasium's
+    ``RecordVideo`` works at eval.py's speed. ``render_mode="human"`` opens MuJoCo's viewer and
+    needs a display: without one it is refused at construction (a UserError) instead of the
+    viewer ending the process. Headless, Gymnasium's ``check_env(env)`` builds an env for each
+    render mode, "human" too: call ``check_env(env.unwrapped, skip_render_check=True)``.
+
+    ## Copies
+    ``copy.deepcopy(env)`` and ``pickle.dumps(env)`` are refused in one line (TypeError). The
+    state of an episode lives in MuJoCo's C structures and in values the step makes lazily; a
+    copy that quietly restarts the tip's velocity and jumps the tip (what one used to do) is
+    worse than none, and a pickle carried 59 MB of model. An episode is repeated exactly by
+    replaying it instead: ``reset(seed=s, options={"traj_seed": n})`` and the same actions.
 
     ## Arguments
     ``PandaLeadEnv(config: EnvConfig | dict | None = None, render_mode=None, width=640,
@@ -107,10 +147,19 @@ class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
                                 if name == "autoreset_mode" else
                                 f"{name} is a setting of the native vector env "
                                 f"(make_vec's default vectorization), not of a single env")
+        # Whether the caller named the episode length (a TimeLimit may set it only if not).
+        self._steps_given = "episode_steps" in settings or _episode_steps_in(config) is not None
         self.cfg = as_config(config, settings)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UserError(f"render_mode must be one of {self.metadata['render_modes']}, "
                             f"got {render_mode!r}")
+        if render_mode == "human":
+            from .display import has_display
+
+            if not has_display():  # MuJoCo's viewer would end the process (exit 1) at a step
+                raise UserError("render_mode='human' opens MuJoCo's viewer and needs a display "
+                                "(none is set: DISPLAY, WAYLAND_DISPLAY); headless, use "
+                                "render_mode='rgb_array' (e.g. with RecordVideo)")
         self.task = SingleTask(self.cfg, 1, nthread=1)
         self.task.rngs[0] = self.np_random  # the env's own seeded generator drives slot 0
         self.core = self.task.core
@@ -154,13 +203,32 @@ class PandaLeadEnv(EpisodeStepsSpec, gym.Env):
         return self.task.lead[0]
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        options = checked_reset_options(options, RESET_OPTIONS)
+        limit = time_limit_around(self)
+        if limit is not None and limit != self.cfg.episode_steps:
+            self._take_episode_steps(limit)
         super().reset(seed=seed)
         self.task.rngs[0] = self.np_random
-        options = options or {}
         seeds = [options["traj_seed"]] if "traj_seed" in options else None
         obs = self.task.reset([0], seeds, [options.get("shape")])
         self.trail = []
         return obs[0], {"traj_seed": int(self.task.traj_seeds[0]), "shape": self.task.shapes[0]}
+
+    def _take_episode_steps(self, steps: int) -> None:
+        """A TimeLimit of ``steps`` wraps this env: that is its episode length, as
+        ``max_episode_steps`` is the native vector env's, or refused if the caller named
+        another (see "Episode end")."""
+        if self._steps_given:
+            raise UserError(
+                f"episode_steps={self.cfg.episode_steps} and max_episode_steps={steps} (a "
+                "TimeLimit around the env) disagree: the episode length has one home, "
+                "episode_steps; give one of the two")
+        self.cfg = self.cfg.replace(episode_steps=steps)  # checked as any setting is
+        self.close()  # frames and viewer were bound to the old core
+        self.task = SingleTask(self.cfg, 1, nthread=1)  # its paths are sized by the length
+        self.core = self.task.core
+        if self._spec is not None:
+            self.spec = self._spec  # the setter reports the new length
 
     def step(self, action):
         # The task's one-slot step gives the info this env reports, as Python scalars.
@@ -207,19 +275,25 @@ class ArmFrames:
     TRAIL = 40  # target positions drawn behind the marker (0.4 s at 100 Hz)
 
     def __init__(self, model, width: int = 640, height: int = 480):
-        import mujoco
+        from . import video
 
-        self._renderer = mujoco.Renderer(model, height, width)
+        # eval.py's video settings (no multisampling, shadows or reflections): in a software
+        # renderer they cost most of a frame (RecordVideo of a 5 s episode: 338 s with them).
+        self._video = video.VideoConfig(width=width, height=height)
+        self._renderer = video._renderer(model, self._video)
         self._data = None
 
     def render(self, core, i: int, trail: list[np.ndarray]) -> np.ndarray:
         """Arm i's frame, (height, width, 3) uint8; ``trail``: its target's past positions."""
         import mujoco
 
+        from . import video
+
         self._data = core.get_data(i, self._data)
         r = self._renderer
         r.update_scene(self._data, camera="workspace")
         scene = r.scene
+        video._scene_flags(scene, self._video)
         for p in trail[-self.TRAIL:]:
             if scene.ngeom >= scene.maxgeom:
                 break
@@ -236,6 +310,80 @@ class ArmFrames:
 def failure_message(failure: str, t: float, traj_seed: int) -> str:
     """info["message"] of a terminating failure (the single env's and the vector env's)."""
     return f"{failure} at t={t:.2f}s (trajectory seed {traj_seed})"
+
+
+# The keys of reset(options=...): the single env's, and the vector env's (one value for
+# every env, or one per env, and which envs to reset).
+RESET_OPTIONS = ("traj_seed", "shape")
+VECTOR_RESET_OPTIONS = RESET_OPTIONS + ("traj_seeds", "shapes", "reset_mask")
+
+
+def checked_reset_options(options, valid: tuple[str, ...]) -> dict:
+    """reset's ``options`` as a dict, checked: a mapping of ``valid`` keys only (a typo would
+    otherwise play a random trajectory), seeds in 0..2^63-1 (None: drawn), known shapes (None:
+    as the seed says). Anything else is a one-line UserError."""
+    from . import trajectory
+    from .seeds import MAX_SEED
+
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise UserError(f"reset(options=...) must be a dict such as {{'traj_seed': 7}}, got "
+                        f"{type(options).__name__} {options!r:.80}")
+    for key in options:
+        if key not in valid:
+            raise UserError(f"unknown reset option {key!r}" + did_you_mean(key, valid))
+    for key, value in options.items():
+        if key in ("traj_seeds", "shapes"):
+            if isinstance(value, str | bytes | Mapping) or not hasattr(value, "__len__"):
+                raise UserError(f"reset option {key!r} must be a list (one per env), got "
+                                f"{value!r:.80}")
+            values = list(value)
+        elif key in ("traj_seed", "shape"):
+            values = [value]
+        else:
+            continue
+        for v in values:
+            if v is None:
+                continue
+            if key.startswith("traj_seed"):
+                if (isinstance(v, bool) or not isinstance(v, int | np.integer)
+                        or not 0 <= int(v) <= MAX_SEED):
+                    raise UserError(f"reset option {key!r}: a trajectory seed is an integer "
+                                    f"in 0..2^63-1, got {v!r:.80}")
+            elif not isinstance(v, str) or v not in trajectory.SHAPES:
+                raise UserError(f"reset option {key!r}: unknown shape {v!r:.80}"
+                                + did_you_mean(v, trajectory.SHAPES))
+    return dict(options)
+
+
+def time_limit_around(env) -> int | None:
+    """The ``max_episode_steps`` of the TimeLimit nearest ``env`` that is resetting it, found
+    among the callers of ``env.reset`` (a TimeLimit calls its env's reset from its own), or
+    None. ``gymnasium.make`` keeps its ``max_episode_steps`` to the TimeLimit it adds and never
+    tells the env; this is how the env learns it. Only frames of functions named ``reset`` are
+    read; a few microseconds a reset."""
+    frame = sys._getframe().f_back
+    for _ in range(64):
+        if frame is None:
+            return None
+        code = frame.f_code
+        if code.co_name == "reset" and "self" in code.co_varnames:
+            owner = frame.f_locals.get("self")
+            if isinstance(owner, gym.wrappers.TimeLimit) and owner.unwrapped is env:
+                steps = getattr(owner, "_max_episode_steps", None)
+                return steps if isinstance(steps, int) else None
+        frame = frame.f_back
+    return None
+
+
+def _episode_steps_in(config) -> int | None:
+    """The episode length a config names (None: a dict that leaves it to the default)."""
+    if isinstance(config, EnvConfig):
+        return config.episode_steps
+    if isinstance(config, dict):
+        return config.get("episode_steps")
+    return None
 
 
 # Settings of the vector env that a single env does not take (make_vec passes its keyword

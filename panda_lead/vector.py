@@ -14,14 +14,22 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from .config import EnvConfig, as_config
-from .env import ArmFrames, EpisodeStepsSpec, failure_message
+from .env import (
+    VECTOR_RESET_OPTIONS,
+    ArmFrames,
+    EpisodeStepsSpec,
+    NotCopyable,
+    _episode_steps_in,
+    checked_reset_options,
+    failure_message,
+)
 from .errors import UserError, did_you_mean
 from .task import LeadTask
 
 AUTORESET_MODES = [m.value for m in AutoresetMode]
 
 
-class PandaLeadVecEnv(EpisodeStepsSpec, VectorEnv):
+class PandaLeadVecEnv(EpisodeStepsSpec, NotCopyable, VectorEnv):
     """N PandaLead-v0 envs in one batch: ``gymnasium.make_vec("PandaLead-v0", num_envs=N)``.
 
     All N arms step in one `mujoco.batch.Batch` in this process; ``num_threads`` (default:
@@ -31,7 +39,8 @@ class PandaLeadVecEnv(EpisodeStepsSpec, VectorEnv):
     - ``reset(seed=s)`` seeds env i with ``s + i`` (a list seeds each env; None leaves one as
       it is), as the single env ``reset(seed=s + i)`` does: the same trajectories.
       ``options``: ``traj_seed``/``shape`` (every env, as the single env takes them) or
-      ``traj_seeds``/``shapes`` (one per env), and ``reset_mask`` (reset only those envs).
+      ``traj_seeds``/``shapes`` (one per env), and ``reset_mask`` (reset only those envs);
+      any other key, a seed outside 0..2^63-1 or an unknown shape is a one-line UserError.
     - ``info`` follows Gymnasium's vector convention: each key of the single env's info is an
       array over the envs with a boolean mask ``_key`` saying which envs have it; the reset
       info (``traj_seed``, ``shape``) only for the envs that reset, the step info
@@ -44,7 +53,9 @@ class PandaLeadVecEnv(EpisodeStepsSpec, VectorEnv):
       yourself, ``reset(options={"reset_mask": mask})``, before stepping them again.
     - ``render_mode="rgb_array"``: ``render()`` returns a tuple of frames, one per env.
     - The episode length has one home, ``episode_steps`` (``spec.max_episode_steps`` reports
-      it); ``max_episode_steps=N`` given alone sets it.
+      it); ``max_episode_steps=N`` given alone sets it, beside a different ``episode_steps``
+      it is refused (as the single env does, and so ``vectorization_mode="sync"``).
+    - ``copy.deepcopy`` and ``pickle`` are refused in one line, as the single env's are.
 
     Gymnasium's ``make_vec(..., wrappers=[...])`` wraps single envs, so it refuses this
     vectorization before the env is built. Use ``make_vec(..., vectorization_mode="sync",
@@ -96,7 +107,7 @@ class PandaLeadVecEnv(EpisodeStepsSpec, VectorEnv):
 
     # --- reset -----------------------------------------------------------------------------
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        n, options = self.num_envs, dict(options or {})
+        n, options = self.num_envs, checked_reset_options(options, VECTOR_RESET_OPTIONS)
         mask = np.ones(n, dtype=bool)
         if "reset_mask" in options:
             mask = _checked_mask(options.pop("reset_mask"), n)
@@ -235,15 +246,6 @@ class PandaLeadVecEnv(EpisodeStepsSpec, VectorEnv):
     def set_speed_cap(self, cap: float | None) -> None:
         """See LeadTask.set_speed_cap (every env of the batch at once)."""
         self.task.set_speed_cap(cap)
-
-
-def _episode_steps_in(config) -> int | None:
-    """The episode length a config names (None: a dict that leaves it to the default)."""
-    if isinstance(config, EnvConfig):
-        return config.episode_steps
-    if isinstance(config, dict):
-        return config.get("episode_steps")
-    return None
 
 
 def _autoreset_mode(mode) -> AutoresetMode:
