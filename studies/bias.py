@@ -11,7 +11,8 @@ For each rollout, over the settled window (t >= 0.5 s, after the swing from the 
   (mm per control step), how much the lead itself moves: a chattering lead, one that flips
   back and forth, has a second difference larger than its step.
 Printed per shape and overall: the mean over rollouts, the median in brackets (cm; the lead
-columns mm), on the seeds every set holds. It reads rollout files only.
+columns mm), on the seeds every set holds. It reads rollout files only, under metrics.py's
+rules: sets that mix controllers or durations are refused, failed episodes are charged.
 """
 
 from __future__ import annotations
@@ -56,17 +57,35 @@ def lead_steps(r) -> tuple[float, float]:
             1000 * float(np.linalg.norm(np.diff(lead, 2, axis=0), axis=1).mean()))
 
 
+def load_sets(prefixes: list[str], root: Path):
+    """The sets under metrics.py's rules (panda_lead.metrics: one controller per set, one
+    duration and dt, one shape per seed; paired on the seeds all hold, each failed episode
+    charged as if the arm froze where it failed). Returns the Pairing."""
+    from panda_lead.errors import check_plain_name
+    from panda_lead.metrics.pairing import check_sets, load_set, pair, require_seeds
+
+    if not prefixes:
+        raise UserError("--prefixes needs at least one rollout set")
+    if len(set(prefixes)) != len(prefixes):
+        raise UserError(f"--prefixes names a set twice: {' '.join(prefixes)}")
+    sets = {p: load_set(check_plain_name(p, "--prefixes"), root) for p in prefixes}
+    check_sets(sets)
+    paired = pair(sets)
+    require_seeds(paired, sets)
+    return paired
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
-    from panda_lead.metrics.pairing import load_set
+    import sys
 
-    loaded = {p: load_set(p, args.root) for p in args.prefixes}
-    seeds = sorted(set.intersection(*(set(s) for s in loaded.values())))
-    if not seeds:
-        raise UserError(f"the sets {', '.join(args.prefixes)} share no seed")
-    sets = {p: {k: s[k] for k in seeds} for p, s in loaded.items()}
+    paired = load_sets(list(args.prefixes), args.root)
+    for line in paired.warnings():
+        print(line, file=sys.stderr)
+    sets = paired.scored
     shapes = sorted({r.shape for r in sets[args.prefixes[0]].values()})
-    print(f"settled window t >= {SETTLE_S} s; {len(seeds)} seeds; mean over rollouts [median], cm\n")
+    print(f"settled window t >= {SETTLE_S} s; {paired.counts()}; mean over rollouts "
+          "[median], cm\n")
     print("| shape | n | set | settled | bias | wobble | lead step (mm) | lead 2nd diff (mm) |")
     print("|---|---|---|---|---|---|---|---|")
     for shape in [*shapes, "all"]:

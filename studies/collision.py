@@ -11,18 +11,27 @@ it back. On that subset each controller plays the episode with early termination
 by the repo's paired statistics: time in self-collision, episodes that touch at all, and mean
 tracking error. Beside the learned leads: the classical IK and the analytic lead, each also
 with the collision-aware IK (``--env.ik.clearance``, clearance.py), and the first model on it.
+
+Every controller is built by the evaluation harness (panda_lead/harness.py), as eval.py builds
+it: a model plays on its sidecar's env without its training-only settings (a model trained with
+a random delay plays with none), and a "+ clearance" row differs from its plain row in
+ik.clearance alone (the model's other IK settings kept).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import tyro
 
-from panda_lead.errors import UserError, exit_on_user_error
+from panda_lead.errors import UserError, exit_on_user_error, parse_cli, printable
+
+STEPS = 500  # 5 s episodes, compared whole
+MIN_SUBSET = 10
+MAX_SUBSET_BYTES = 1 << 20  # a seed per line: 10,000 pool seeds are ~80 kB
 
 
 @dataclass
@@ -58,56 +67,99 @@ def find_subset(chunk: int = 1000) -> list[int]:
     return found
 
 
+def build_controllers(models: list[Path], clearance: float) -> tuple[dict, list[str]]:
+    """label -> harness.Controller, each on its evaluation env (harness.evaluation_config:
+    no training-only noise, delay or termination; every episode runs its full 5 s); the
+    "+ clearance" rows are the same controller with ik.clearance set and nothing else changed.
+    Returns them and the models' labels (the first is the reference)."""
+    from panda_lead import harness
+
+    if not models:
+        raise UserError("name at least one --models archive/NAME.zip")
+    if not (math.isfinite(clearance) and clearance > 0):
+        raise UserError(f"--clearance must be a positive distance in metres, got {clearance}")
+    aware = {"ik": {"clearance": clearance}}
+    ctrls = {"Classical": harness.build("classical", STEPS),
+             "Classical + clearance": harness.build("classical", STEPS, None, aware),
+             "Analytic": harness.build("analytic", STEPS),
+             "Analytic + clearance": harness.build("analytic", STEPS, None, aware)}
+    labels = harness.model_labels(models)
+    for i, (path, label) in enumerate(zip(models, labels, strict=True)):
+        ctrls[label] = harness.build("policy", STEPS, path)
+        if ctrls[label].dropped:
+            print(f"note: {label} plays without its training-only settings "
+                  f"{', '.join(ctrls[label].dropped)} (as eval.py plays it)")
+        if i == 0:
+            ctrls[f"{label} + clearance"] = harness.build("policy", STEPS, path, aware)
+    return ctrls, labels
+
+
+def read_subset(path: Path) -> list[int]:
+    """The collision-prone seeds of a --subset file: one seed per line, each a valid seed,
+    none twice (bounded read)."""
+    from panda_lead.seeds import check_seed
+
+    try:
+        with open(path, "rb") as f:
+            data = f.read(MAX_SUBSET_BYTES + 1)
+        if len(data) > MAX_SUBSET_BYTES:
+            raise UserError(f"--subset {path}: over {MAX_SUBSET_BYTES:,} bytes, not a seed list")
+        seeds = [int(word) for word in data.decode("ascii").split()]
+    except (OSError, ValueError) as exc:  # (UnicodeDecodeError is a ValueError)
+        raise UserError(f"cannot read the subset {path}: {printable(exc, 120)}") from None
+    for s in seeds:
+        check_seed(s, f"--subset {path}: a seed")
+    if len(set(seeds)) != len(seeds):
+        raise UserError(f"--subset {path} names a seed twice")
+    if len(seeds) < MIN_SUBSET:
+        raise UserError(f"only {len(seeds)} collision-prone seeds in {path}: too few to compare")
+    return seeds
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     from panda_lead import controllers
-    from panda_lead.atomicio import atomic_write
     from panda_lead.config import EnvConfig
-    from panda_lead.harness import model_labels
-    from panda_lead.metrics import compare, diff_text
-    from panda_lead.models import load_policy
+    from panda_lead.outputs import claimed_outputs
     from panda_lead.rollout import record_many
 
-    if not args.models:
-        raise UserError("name at least one --models archive/NAME.zip")
     seeds_file = args.out.with_name(args.out.stem + "_seeds.txt")
     write_seeds = args.subset is None or args.subset.resolve() != seeds_file.resolve()
-    there = [p for p in [args.out, *([seeds_file] if write_seeds else [])] if p.exists()]
-    if there and not args.force:
-        raise UserError(f"{' and '.join(map(str, there))} exist{'s' if len(there) == 1 else ''}; "
-                        "add --force to replace")
-    if args.subset is not None:
-        try:
-            seeds = [int(line) for line in args.subset.read_text().split()]
-        except (OSError, ValueError) as exc:
-            raise UserError(f"cannot read the subset {args.subset}: {exc}") from None
-    else:
-        print("finding the collision-prone subset of the seed pool (classical rollouts)")
-        seeds = find_subset()
-    if len(seeds) < 10:
-        raise UserError(f"only {len(seeds)} collision-prone seeds: too few to compare")
-    aware = {"ik": {"clearance": args.clearance}}
-    ctrls = {"Classical": (controllers.classical, {}),
-             "Classical + clearance": (controllers.classical, aware),
-             "Analytic": (controllers.make_analytic(), {}),
-             "Analytic + clearance": (controllers.make_analytic(), aware)}
-    labels = model_labels(args.models)
-    for i, (path, label) in enumerate(zip(args.models, labels, strict=True)):
-        policy, env_config, _ = load_policy(path)
-        ctrls[label] = (controllers.make_policy(policy), env_config)
-        if i == 0:
-            ctrls[f"{label} + clearance"] = (controllers.make_policy(policy),
-                                             {**env_config, **aware})
-    record_many(EnvConfig(episode_steps=5), controllers.classical, seeds[:2])  # warm-up: imports, caches
-    sets, cpu_us = {}, {}
-    for name, (act, base) in ctrls.items():
-        config = EnvConfig.from_dict({**base, "episode_steps": 500,
-                                      "terminate_on_collision": False})
-        start = time.process_time()
-        sets[name] = {r.seed: r for r in record_many(config, act, seeds, nthread=1)}
-        cpu_us[name] = (time.process_time() - start) / (len(seeds) * 500) * 1e6
-        print(f"  played {name}: {cpu_us[name]:.0f} us CPU per env step", flush=True)
-    ref = labels[0]
+    outputs = [args.out, *([seeds_file] if write_seeds else [])]
+    seeds = read_subset(args.subset) if args.subset is not None else None
+    with claimed_outputs(outputs, "--out", args.force):  # a second run on --out stops here
+        ctrls, labels = build_controllers(list(args.models), args.clearance)  # before any play
+        if seeds is None:
+            print("finding the collision-prone subset of the seed pool (classical rollouts)")
+            seeds = find_subset()
+            if len(seeds) < MIN_SUBSET:
+                raise UserError(f"only {len(seeds)} collision-prone seeds: too few to compare")
+        record_many(EnvConfig(episode_steps=5), controllers.classical, seeds[:2])  # warm-up
+        sets, cpu_us = {}, {}
+        for name, ctrl in ctrls.items():
+            start = time.process_time()
+            sets[name] = {r.seed: r for r in record_many(ctrl.config, ctrl.act, seeds,
+                                                         meta=ctrl.meta, nthread=1)}
+            cpu_us[name] = (time.process_time() - start) / (len(seeds) * STEPS) * 1e6
+            print(f"  played {name}: {cpu_us[name]:.0f} us CPU per env step", flush=True)
+        table = _table(args, sets, cpu_us, labels[0], seeds, seeds_file)
+        _write(args.out, table)
+        if write_seeds:
+            _write(seeds_file, "".join(f"{s}\n" for s in seeds))
+    print(table)
+
+
+def _write(path: Path, text: str) -> None:
+    from panda_lead.atomicio import atomic_write
+
+    with atomic_write(path, path.suffix) as tmp:
+        Path(tmp).write_text(text)
+
+
+def _table(args: Args, sets: dict, cpu_us: dict, ref: str, seeds: list[int],
+           seeds_file: Path) -> str:
+    from panda_lead.metrics import compare, diff_text
+
     command = ("uv run studies/collision.py --models " + " ".join(map(str, args.models))
                + (f" --clearance {args.clearance}" if args.clearance != 0.02 else "")
                + (f" --subset {args.subset}" if args.subset else "")
@@ -144,15 +196,8 @@ def main(args: Args) -> None:
                      f"| {median} | {cpu_us[name] / cpu_us[plain]:.2f}x |")
     lines += ["", f"CPU per step: one thread, {len(seeds)} arms in one batch, the whole loop "
               "(controller, IK, physics, recording); a shared machine, so read the ratios."]
-    table = "\n".join(lines) + "\n"
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(args.out, ".md") as tmp:
-        Path(tmp).write_text(table)
-    if write_seeds:
-        with atomic_write(seeds_file, ".txt") as tmp:
-            Path(tmp).write_text("".join(f"{s}\n" for s in seeds))
-    print(table)
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()

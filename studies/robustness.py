@@ -17,15 +17,15 @@ latency.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import tyro
 
-from panda_lead.errors import UserError, exit_on_user_error
+from panda_lead.errors import UserError, check_output, exit_on_user_error, parse_cli
 
 
 @dataclass
@@ -46,17 +46,25 @@ class Args:
     """Replace existing <question>.md and .png."""
 
 
+MAX_NOISE_CM = 100.0  # a metre of noise on a 1 m workspace: beyond it a level is a typo
+MAX_DELAY_STEPS = 50  # the env's bound (EnvConfig)
+MIN_BOOTSTRAP, MAX_BOOTSTRAP = 100, 100_000  # metrics.py's bounds
+
+
 def condition(question: str, level: float) -> dict:
     """The env settings of one level. An evaluation starts from none of a model's own
     training-only settings (harness.evaluation_config), so the level is exactly what every
     controller sees: a policy trained with randomised delays gets exactly k steps here."""
     if question == "noise":
+        if not (math.isfinite(level) and 0 <= level <= MAX_NOISE_CM):
+            raise UserError(f"noise levels are sigmas in cm in [0, {MAX_NOISE_CM:g}], got {level}")
         s = level / 100.0
         return {"obs_noise": {"ee_pos": s, "target_pos": s, "ee_vel": 10 * s,
                               "target_vel": 10 * s, "target_acc": 100 * s}}
+    if not (math.isfinite(level) and level == int(level) and 0 <= level <= MAX_DELAY_STEPS):
+        raise UserError(f"delay levels are whole control steps in 0..{MAX_DELAY_STEPS}, got "
+                        f"{level}")
     k = int(level)
-    if k != level or k < 0:
-        raise UserError(f"delay levels are whole control steps >= 0, got {level}")
     return {"obs_delay": k, "action_delay": k, "random_delay": False}
 
 
@@ -77,45 +85,65 @@ def play(ctrl, seeds: list[int]) -> dict:
     return {r.seed: r for r in iter_record(ctrl.config, ctrl.act, seeds, meta=ctrl.meta)}
 
 
-@exit_on_user_error
-def main(args: Args) -> None:
-    from panda_lead.core import control_dt
-    from panda_lead.metrics import bootstrap_ci, compare
+def plan(args: Args) -> tuple[Args, list[tuple[float, dict]], list[int], list[Path]]:
+    """Every value checked before any play (a bad level found after the first level's plays
+    would waste them): the levels and their env settings, seeds, bootstrap count and the output
+    paths (a folder, not a file; not replaced without --force)."""
     from panda_lead.seeds import parse_seed_range
 
     if args.out is None:
         args = replace(args, out=_default_out(args.question))
-    outputs = [args.out / f"{args.question}.md", args.out / f"{args.question}.png"]
-    if any(p.exists() for p in outputs) and not args.force:
-        raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
-    levels = args.levels or ([0, 0.5, 1, 2] if args.question == "noise" else [0, 1, 2, 3])
+    levels = list(args.levels) or ([0, 0.5, 1, 2] if args.question == "noise" else [0, 1, 2, 3])
+    if len(set(levels)) != len(levels):
+        raise UserError(f"--levels names a level twice: {' '.join(f'{x:g}' for x in levels)}")
+    if not MIN_BOOTSTRAP <= args.bootstrap <= MAX_BOOTSTRAP:
+        raise UserError(f"--bootstrap must be {MIN_BOOTSTRAP}..{MAX_BOOTSTRAP:,}, got "
+                        f"{args.bootstrap}")
     seeds = parse_seed_range(args.seeds)
-    steps = int(round(5.0 / control_dt()))
-    unit = "cm" if args.question == "noise" else "steps"
-    rows, curves = [], {}
-    t0 = time.perf_counter()
-    for level in levels:
-        ctrls = controllers_at(args.models, condition(args.question, level), steps)
-        sets = {name: play(c, seeds) for name, c in ctrls.items()}
-        for name, rs in sets.items():
-            cmp = compare(sets["Analytic"], rs, n_boot=args.bootstrap, label_a="Analytic",
-                          label_b=name)
-            err, jerk = cmp.row("mean_err"), cmp.row("jerk_rms")
-            errs = [cmp.metrics_b[s]["mean_err"] for s in cmp.seeds]
-            jerks = [cmp.metrics_b[s]["jerk_rms"] for s in cmp.seeds]
-            curves.setdefault(name, []).append(
-                (level, err.mean_b, bootstrap_ci(errs, n_boot=args.bootstrap), jerk.mean_b,
-                 bootstrap_ci(jerks, n_boot=args.bootstrap)))
-            rows.append((level, name, err, jerk, len(cmp.pairing.charged[name])))
-            print(f"{args.question} {level:g} {unit}: {name:24s} error {err.mean_b:5.2f} cm, "
-                  f"jerk {jerk.mean_b:6.1f} ({time.perf_counter() - t0:.0f} s)", flush=True)
-        del sets
-    table = _table(args, rows, unit, seeds)
-    from panda_lead.atomicio import atomic_write
+    if len(seeds) < 2:
+        raise UserError(f"--seeds must name at least 2 seeds for a CI, got {args.seeds!r}")
+    settings = [condition(args.question, level) for level in levels]
+    outputs = [args.out / f"{args.question}.md", args.out / f"{args.question}.png"]
+    for path in outputs:
+        check_output(path, "--out", args.force)
+    return args, list(zip(levels, settings, strict=True)), seeds, outputs
 
-    with atomic_write(outputs[0], ".tmp.md") as tmp:
-        Path(tmp).write_text(table)
-    _figure(args, curves, unit, seeds)
+
+@exit_on_user_error
+def main(args: Args) -> None:
+    from panda_lead.atomicio import atomic_write
+    from panda_lead.core import control_dt
+    from panda_lead.metrics import bootstrap_ci, compare
+    from panda_lead.outputs import claimed_outputs
+
+    args, levels, seeds, outputs = plan(args)
+    unit = "cm" if args.question == "noise" else "steps"
+    with claimed_outputs(outputs, "--out", args.force):  # a second run on --out stops here
+        steps = int(round(5.0 / control_dt()))
+        planned = [(level, controllers_at(args.models, settings, steps))  # models load here,
+                   for level, settings in levels]  # all before the first play
+        rows, curves = [], {}
+        t0 = time.perf_counter()
+        for level, ctrls in planned:
+            sets = {name: play(c, seeds) for name, c in ctrls.items()}
+            for name, rs in sets.items():
+                cmp = compare(sets["Analytic"], rs, n_boot=args.bootstrap, label_a="Analytic",
+                              label_b=name)
+                err, jerk = cmp.row("mean_err"), cmp.row("jerk_rms")
+                errs = [cmp.metrics_b[s]["mean_err"] for s in cmp.seeds]
+                jerks = [cmp.metrics_b[s]["jerk_rms"] for s in cmp.seeds]
+                curves.setdefault(name, []).append(
+                    (level, err.mean_b, bootstrap_ci(errs, n_boot=args.bootstrap), jerk.mean_b,
+                     bootstrap_ci(jerks, n_boot=args.bootstrap)))
+                rows.append((level, name, err, jerk, len(cmp.pairing.charged[name])))
+                print(f"{args.question} {level:g} {unit}: {name:24s} error {err.mean_b:5.2f} "
+                      f"cm, jerk {jerk.mean_b:6.1f} ({time.perf_counter() - t0:.0f} s)",
+                      flush=True)
+            del sets
+        table = _table(args, rows, unit, seeds)
+        with atomic_write(outputs[0], ".tmp.md") as tmp:
+            Path(tmp).write_text(table)
+        _figure(args, curves, unit, seeds)
     print(table)
 
 
@@ -184,4 +212,4 @@ def _figure(args: Args, curves: dict, unit: str, seeds: list[int]) -> None:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()
