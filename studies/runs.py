@@ -262,8 +262,10 @@ def compare_studies(args: Args) -> None:
         raise UserError("compare needs --against-study NAME")
     a, b = load_study(args.against_study, ("test",)), load_study(args.study, ("test",))
     same_test_seeds(a + b, f"--study {args.study} against --against-study {args.against_study}")
+    from panda_lead.metrics import bootstrap_verdicts
+
     rng = np.random.default_rng(0)
-    lines = []
+    lines, cis, resamples = [], [], []
     for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
                       ("jerk_rms", "jerk RMS")):
         ma = np.array([s["test"][key] for s in a])  # (seeds, trajectories)
@@ -276,10 +278,14 @@ def compare_studies(args: Args) -> None:
             sa, sb = rng.integers(0, len(a), len(a)), rng.integers(0, len(b), len(b))
             boots[i] = mb[sb][:, t].mean() - ma[sa][:, t].mean()
         lo, hi = np.percentile(boots, [2.5, 97.5])
-        verdict = "shown" if lo > 0 or hi < 0 else "not shown"
+        cis.append((lo, hi))
+        resamples.append(boots)
         lines.append(f"| {name} | {ma.mean():.3f} | {mb.mean():.3f} | {d.mean():+.3f} "
-                     f"[{lo:+.3f}, {hi:+.3f}] {verdict} | {np.median(d):+.3f} | "
+                     f"[{lo:+.3f}, {hi:+.3f}] {{verdict}} | {np.median(d):+.3f} | "
                      f"{100 * np.mean(d < 0):.0f}% |")
+    # The findings rule (metrics.finding_verdict): CI, pairs and Holm p over these metrics.
+    verdicts = bootstrap_verdicts(cis, resamples, n)
+    lines = [line.format(verdict=v) for line, v in zip(lines, verdicts, strict=True)]
     print(f"`{args.study}` ({len(b)} seeds: {', '.join(str(s['seed']) for s in b)}) minus "
           f"`{args.against_study}` ({len(a)} seeds: {', '.join(str(s['seed']) for s in a)}), "
           f"each the mean over its seeds per test trajectory ({TEST}); 95% CI: two-level "

@@ -516,3 +516,34 @@ def test_the_ilc_oracle_keeps_no_list_of_rollouts(monkeypatch, played):
 
     _oracle_with(monkeypatch, played, track, check)
     assert max(alive_at_handover) <= 1
+
+
+# --- one findings rule, in code (issue 38) -----------------------------------------------------
+
+def test_a_finding_needs_the_ci_the_pairs_and_the_holm_p():
+    """Issue 38: README called a difference a finding when its CI excludes 0 AND its Holm p
+    is below 0.05, while the code's "shown" was the CI and >= 10 pairs, and the study
+    comparisons computed no p at all. One rule: metrics.finding_verdict."""
+    from panda_lead.metrics import Row, claim, finding_verdict
+
+    assert finding_verdict((-2.0, -1.0), 1000, 0.001) == "shown"
+    assert finding_verdict((-2.0, 0.1), 1000, 0.001) == "not shown"
+    assert finding_verdict((-2.0, -1.0), 9, 0.001).startswith("not shown (only 9 pairs")
+    assert finding_verdict((-2.0, -1.0), 1000, 0.2).startswith("not shown (CI excludes 0 but")
+    row = Row("mean_err", "mean error (cm)", "lower", 5.0, 1.0, 5.0, 4.0, 1.0, 4.0, 30, 30, 30,
+              -1.0, (-1.5, -0.5), -1.0, (-1.5, -0.5), 25, 0.01, p_holm=0.2)
+    assert "mean diff -1.00 [-1.50, -0.50] not shown" in claim(row)
+    row.p_holm = 0.001
+    assert "mean diff -1.00 [-1.50, -0.50] shown" in claim(row)
+
+
+def test_a_study_comparison_gets_a_holm_adjusted_bootstrap_p():
+    from panda_lead.metrics import bootstrap_p, bootstrap_verdicts
+
+    boots = np.concatenate([np.full(20, -0.1), np.linspace(0.1, 1.0, 980)])  # 2% at or below 0
+    ci = tuple(np.percentile(boots, [2.5, 97.5]))
+    assert ci[0] > 0 and bootstrap_p(boots) == pytest.approx(0.04)
+    assert bootstrap_verdicts([ci], [boots], 1000) == ["shown"]
+    # three such metrics in one table: Holm makes 0.04 x 3 = 0.12, no finding
+    assert all(v.startswith("not shown (CI excludes 0")
+               for v in bootstrap_verdicts([ci] * 3, [boots] * 3, 1000))

@@ -5,8 +5,8 @@
 
 The table reports, per set, mean ± std and median; for the paired differences B - A the mean
 and the median, each with a 95% percentile-bootstrap CI, the share of seeds where B is better,
-and a Wilcoxon signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0
-(and at least 10 pairs back it). The headline figure (--headline, two or more sets) draws mean
+and a Wilcoxon signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0,
+at least 10 pairs back it and its Holm-adjusted p is below 0.05 (metrics.finding_verdict). The headline figure (--headline, two or more sets) draws mean
 and median error against the target's peak speed. Every definition, exactly as computed:
 docs/metrics.md.
 """
@@ -40,8 +40,8 @@ from ..metrics.pairing import (
     set_labels,
     unpaired_warning,
 )
-from ..metrics.stats import BY_KEY, MIN_PAIRS_FOR_CLAIM, Row, claim, fmt_ci, fmt_num
-from ..metrics.stats import shown as shown_ci
+from ..metrics.stats import BY_KEY, FINDING_P, MIN_PAIRS_FOR_CLAIM, Row, claim, fmt_ci, fmt_num
+from ..metrics.stats import is_finding
 
 # Beyond these a number is a typo (the run would take hours): 10,000 resamples (the default)
 # already fix a 95% CI's bounds to about 1% of its width.
@@ -112,7 +112,7 @@ def speed_table(cmp: Comparison) -> Table:
         table.add_column(name, justify="right")
     for lo, hi, rows in cmp.by_speed:
         r = next(r for r in rows if r.key == "mean_err")
-        shown = "yes" if shown_ci(r.ci) and r.n_pairs >= MIN_PAIRS_FOR_CLAIM else "no"
+        shown = "yes" if is_finding(r.ci, r.n_pairs, r.p_holm) else "no"
         table.add_row(f"{lo:.2f}-{hi:.2f}", str(r.n_pairs), f"{r.mean_a:.2f}", f"{r.mean_b:.2f}",
                       f"{r.delta:+.2f} {fmt_ci(r.ci, '.2f')}",
                       f"{r.median_delta:+.2f} {fmt_ci(r.median_ci, '.2f')}",
@@ -295,7 +295,8 @@ def run_compare(args: Args, console: Console) -> None:
     _print_tables(console, tables, args.markdown)
     bullet = "- " if args.markdown else "  "
     _say(console, f"\nclaims, {args.label_b} vs {args.label_a} (shown = the 95% CI of the paired "
-                  "difference excludes 0):")
+                  f"difference excludes 0, at least {MIN_PAIRS_FOR_CLAIM} pairs and Holm p < "
+                  f"{FINDING_P:g}):")
     for row in cmp.rows:
         _say(console, bullet + claim(row, args.label_b))
     if args.oracle:

@@ -15,13 +15,18 @@ from .pairing import (  # noqa: F401
 )
 from .stats import (  # noqa: F401
     BY_KEY,
+    FINDING_P,
     METRICS,
     MIN_PAIRS_FOR_CLAIM,
     Metric,
     Row,
     bootstrap_ci,
+    bootstrap_p,
+    bootstrap_verdicts,
     claim,
     diff_text,
+    finding_verdict,
+    is_finding,
     median_ci,
     paired_ci,
     peak_speed,

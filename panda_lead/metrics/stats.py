@@ -4,8 +4,11 @@ terminal output), so any script can import them cheaply.
 Every metric is computed per rollout; two sets are paired by seed. For each metric: per set
 mean, sample std and median; for the paired differences B - A the mean and the median, each
 with a 95% percentile-bootstrap CI, the share of seeds where B is better, and a Wilcoxon
-signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0 (and at least
-MIN_PAIRS_FOR_CLAIM pairs back it). Every definition, exactly as computed: docs/metrics.md.
+signed-rank p-value. A difference is "shown" (a finding) by one rule, `finding_verdict`: its
+95% CI excludes 0, at least MIN_PAIRS_FOR_CLAIM pairs back it, and its Holm-adjusted p over
+the metrics of its table is below FINDING_P. metrics.py's claims and tables and the study
+comparisons (studies/runs.py compare, `bootstrap_verdicts`) all use it. Every definition,
+exactly as computed: docs/metrics.md.
 """
 
 from __future__ import annotations
@@ -61,6 +64,8 @@ COUNTED = {"out_reach_err"}
 
 # Below this many pairs a percentile-bootstrap CI is too narrow to back a claim.
 MIN_PAIRS_FOR_CLAIM = 10
+# A finding's Holm-adjusted p (over the metrics of its table) is below this.
+FINDING_P = 0.05
 
 
 def mean_or_nan(x: np.ndarray) -> float:
@@ -133,6 +138,43 @@ def shown(ci: tuple[float, float]) -> bool:
     """A difference is shown when its 95% CI excludes zero (an n/a CI shows nothing)."""
     lo, hi = ci
     return bool(np.isfinite(lo) and np.isfinite(hi) and (lo > 0 or hi < 0))
+
+
+def finding_verdict(ci: tuple[float, float], n_pairs: int, p_holm: float) -> str:
+    """THE rule for calling a paired difference a finding: "shown" when its 95% CI excludes
+    zero, at least MIN_PAIRS_FOR_CLAIM pairs back it (percentile-bootstrap CIs are too narrow
+    below that) and its p, Holm-adjusted over the metrics of its table, is below FINDING_P
+    (a table tests several metrics at once); else "not shown" with the reason."""
+    if n_pairs < MIN_PAIRS_FOR_CLAIM:
+        return f"not shown (only {n_pairs} pairs, fewer than {MIN_PAIRS_FOR_CLAIM})"
+    if not shown(ci):
+        return "not shown"
+    if not (np.isfinite(p_holm) and p_holm < FINDING_P):
+        return f"not shown (CI excludes 0 but Holm p {p_holm:.2g} is not below {FINDING_P:g})"
+    return "shown"
+
+
+def is_finding(ci: tuple[float, float], n_pairs: int, p_holm: float) -> bool:
+    return finding_verdict(ci, n_pairs, p_holm) == "shown"
+
+
+def bootstrap_p(boots) -> float:
+    """Two-sided p of a difference from its bootstrap resamples: twice the share on the
+    smaller side of zero (at most 1), the p that matches a percentile CI (the 95% CI excludes
+    zero exactly when this is below 0.05, up to ties at zero)."""
+    b = np.asarray(boots, dtype=float)
+    b = b[np.isfinite(b)]
+    if len(b) == 0:
+        return NAN
+    return float(min(1.0, 2 * min(np.mean(b <= 0), np.mean(b >= 0))))
+
+
+def bootstrap_verdicts(cis, boots, n_pairs: int) -> list[str]:
+    """finding_verdict for each difference of one table whose CIs come from bootstrap
+    resamples (studies/runs.py compare): p from each one's resamples (bootstrap_p),
+    Holm-adjusted over the table."""
+    p_holm = holm([bootstrap_p(b) for b in boots])
+    return [finding_verdict(ci, n_pairs, p) for ci, p in zip(cis, p_holm, strict=True)]
 
 
 def wilcoxon_p(deltas) -> float:
@@ -270,19 +312,18 @@ def share_captured(base: np.ndarray, learned: np.ndarray, ceiling: np.ndarray,
 
 
 def claim(row: Row, label_b: str = "B") -> str:
-    """One line: the mean and median differences, each 'shown' (95% CI excludes 0 and at least
-    MIN_PAIRS_FOR_CLAIM pairs) or 'not shown', and the share of seeds improved."""
+    """One line: the mean and median differences, each 'shown' or 'not shown' by
+    `finding_verdict` (the row's Holm-adjusted Wilcoxon p for both), and the share of seeds
+    improved."""
     fmt = BY_KEY[row.key].fmt
 
     def part(name: str, value: float, ci: tuple[float, float]) -> str:
         if not np.isfinite(value):
             return f"{name} diff n/a"
-        verdict = "shown" if shown(ci) else "not shown"
+        verdict = finding_verdict(ci, row.n_pairs, row.p_holm)
         small = BY_KEY[row.key].negligible
-        if shown(ci) and abs(value) < small:
+        if verdict == "shown" and abs(value) < small:
             verdict = f"shown, negligible (|diff| < {small:g})"
-        if row.n_pairs < MIN_PAIRS_FOR_CLAIM:
-            verdict = f"not shown (only {row.n_pairs} pairs, fewer than {MIN_PAIRS_FOR_CLAIM})"
         return f"{name} diff {fmt_num(value, fmt, True)} {fmt_ci(ci, fmt)} {verdict}"
 
     share = (f"{label_b} better on {row.improved}/{row.n_pairs} seeds "
