@@ -113,3 +113,19 @@ def test_deploy_refuses_an_unknown_condition(tmp_path, capsys):
     assert exc.value.code == 2
     assert "unknown condition 'delay2'" in capsys.readouterr().err
     assert not (tmp_path / "deploy.md").exists()
+
+
+def test_noise_condition_reaches_the_tip_error():
+    """Under the study's 1 cm condition the tip error a learned lead observes is the true one
+    plus noise of sqrt(2) cm (two readings of 1 cm), as its positions are."""
+    from panda_lead.config import OBS_15, OBS_SCALE
+
+    deploy = _deploy_module()
+    config = EnvConfig(obs_features=OBS_15 + ("tip_error",)).merged(deploy.overrides("noise1"))
+    task = LeadTask(config, 64)
+    task.rngs = [np.random.default_rng(s) for s in range(64)]
+    obs = task.reset(None, list(range(64)))
+    a, b = next((a, b) for f, a, b in task.layout if f == "tip_error")
+    pos, _, _ = task.core.target()
+    seen = obs[:, a:b] * OBS_SCALE["tip_error"]
+    assert np.std(seen - (task.core.tip_pos - pos)) == pytest.approx(0.01 * np.sqrt(2), rel=0.15)
