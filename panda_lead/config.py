@@ -22,6 +22,7 @@ OBS_FEATURES = {
     "ee_pos": 3, "ee_vel": 3, "target_pos": 3, "target_vel": 3, "target_acc": 3,
     "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3, "tip_error": 3,
     "tip_error_avg": 3,
+    "target_preview": 18,  # PREVIEW_POINTS future target offsets (EnvConfig.preview_times)
 }
 # Each feature is divided by a fixed scale so that every input of the policy is of order one
 # (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
@@ -38,7 +39,12 @@ OBS_SCALE = {
     # error_avg_clip): the slow bias a memoryless policy cannot see in one error sample, what
     # a PID's integral term acts on. At a 1 cm scale a millimetre of bias is 0.1 of an input.
     "tip_error_avg": 0.01,
+    # The planned path ahead (issue 37; a variant that KNOWS THE PLANNED PATH, never mixed
+    # with the causal results): the target's future positions p(t + h) - p(t), h in
+    # EnvConfig.preview_times; 0.3 s ahead at 2.5 m/s is 0.75 m, so 0.1 m keeps them of order 1.
+    "target_preview": 0.1,
 }
+PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
 # The observation layouts of the reference ladder (the presets build on them).
 OBS_12 = ("ee_pos", "ee_vel", "target_pos", "target_vel")
 OBS_15 = OBS_12 + ("target_acc",)
@@ -82,6 +88,20 @@ def check_features(features) -> tuple[str, ...]:
     if not features:
         raise UserError("the observation needs at least one feature")
     return tuple(f for f in OBS_FEATURES if f in features)
+
+
+def check_preview_times(times) -> tuple[float, ...]:
+    """PREVIEW_POINTS increasing look-aheads in (0, 1] s, as a tuple of floats."""
+    try:
+        times = tuple(float(t) for t in times)
+    except (TypeError, ValueError):
+        raise UserError(f"preview_times must be {PREVIEW_POINTS} numbers of seconds, got "
+                        f"{times!r}") from None
+    if (len(times) != PREVIEW_POINTS or not all(0 < t <= 1 for t in times)
+            or any(b <= a for a, b in zip(times, times[1:], strict=False))):
+        raise UserError(f"preview_times must be {PREVIEW_POINTS} increasing look-aheads in "
+                        f"(0, 1] s, got {list(times)}")
+    return times
 
 
 def obs_layout(features) -> list[tuple[str, int, int]]:
@@ -134,6 +154,10 @@ class EnvConfig:
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    preview_times: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
+    """The `target_preview` observation's look-aheads (s; 6 increasing, in (0, 1]): it holds
+    the target's future positions p(t + h) - p(t), what a controller that knows the planned
+    path sees (a labelled variant: "knows the planned path")."""
     obs_stack: int = field(default=1, metadata={"range": (1, 16)})
     """Observe the last k observations, newest first (frame stacking inside the env; the
     observation is k times as long); 1: the current one only."""
@@ -175,6 +199,7 @@ class EnvConfig:
             if not (isinstance(std, int | float) and math.isfinite(std) and std >= 0):
                 raise UserError(f"obs_noise[{f!r}] must be a finite std >= 0, got {std!r}")
         set_("obs_noise", {f: float(v) for f, v in self.obs_noise.items()})
+        set_("preview_times", check_preview_times(self.preview_times))
         set_("ik", IKConfig.from_dict(self.ik))
         check_typed_fields(self)
         for name in REWARD_TERMS:  # bounded: a weight of 1e308 makes every loss infinite

@@ -45,6 +45,11 @@ class LeadTask:
         # updated only when it is observed
         self._avg_observed = "tip_error_avg" in self._features
         self.err_avg = np.zeros((n, 3))
+        # target_preview: each slot's future target offsets at every step of its episode,
+        # computed from its trajectory at its reset (the path ahead runs past the episode's end)
+        self._preview_observed = "target_preview" in self._features
+        self._preview = (np.zeros((n, c.episode_steps + 1, 3 * len(c.preview_times)))
+                         if self._preview_observed else None)
         self._avg_rate, self._avg_clip = self.dt / c.error_avg_time, c.error_avg_clip
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
         self._alive = np.full(n, self._w["alive"])
@@ -92,6 +97,8 @@ class LeadTask:
         core = self.core
         core.reset(ids, trajs, self.config.episode_steps)
         self._reachable[ids] = reachable(core.target_pos[ids])
+        if self._preview_observed:
+            self._set_preview(ids)
         self.prev_action[ids] = 0.0
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
@@ -120,6 +127,15 @@ class LeadTask:
             self._stack[:, 0] = obs
         return self._stack.reshape(self.n, -1).copy()
 
+    def _set_preview(self, ids) -> None:
+        """target_preview's rows for slots ``ids``: p(t + h) - p(t) at every step's time t,
+        h in preview_times, from each slot's trajectory (defined for every t >= 0)."""
+        times = np.arange(self.config.episode_steps + 1) * self.dt
+        for i in ids:
+            now = self.core.target_pos[i]
+            for j, h in enumerate(self.config.preview_times):
+                self._preview[i, :, 3 * j:3 * j + 3] = self.trajs[i].at(times + h)[0] - now
+
     def _draw(self, i: int, shape: str | None):
         """A training trajectory from slot i's own stream (under the speed cap, if any)."""
         while True:
@@ -144,6 +160,9 @@ class LeadTask:
             source["tip_error"] = core.tip_pos - pos
         if self._avg_observed:
             source["tip_error_avg"] = self.err_avg
+        if self._preview_observed:
+            k = np.minimum(core.step_count, self.config.episode_steps)
+            source["target_preview"] = self._preview[self._all, k]
         for f, a, b in self.layout:
             raw[:, a:b] = source[f]
         if len(self._noisy):

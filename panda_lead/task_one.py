@@ -37,7 +37,7 @@ from .task import LeadTask
 
 # step_one's order of the observation features (its tuple of their values)
 _SOURCES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "joint_pos",
-            "joint_vel", "prev_action", "tip_error", "tip_error_avg")
+            "joint_vel", "prev_action", "tip_error", "tip_error_avg", "target_preview")
 
 
 class LeadTaskOne(LeadTask):
@@ -96,6 +96,8 @@ class LeadTaskOne(LeadTask):
     def reset(self, ids=None, traj_seeds=None, shapes=None) -> np.ndarray:
         obs = super().reset(ids, traj_seeds, shapes)
         self._reachable_row = self._reachable[0].tolist()  # step_one's, as Python bools
+        if self._preview_observed:  # the preview's rows, as Python floats (LeadTask's values)
+            self._preview_rows = self._preview[0].tolist()
         return obs
 
     def step_one(self, action):
@@ -176,7 +178,8 @@ class LeadTaskOne(LeadTask):
         source = (ee, ee_vel, target, path_vel[k], path_acc[k],
                   core.qpos[0].tolist() if joints else None,
                   core.qvel[0].tolist() if joints else None,
-                  values, (dx, dy, dz), avg if self._avg_observed else None)
+                  values, (dx, dy, dz), avg if self._avg_observed else None,
+                  self._preview_rows[k] if self._preview_observed else None)
         raw = chain.from_iterable(self._pick(source))
         if len(self._noisy):
             raw = list(raw)
