@@ -176,7 +176,7 @@ def make_predicting_analytic(tau: float = DEFAULT_TAU):
 # (results/studies/preview/rivals_tuning.md), never on the test seeds.
 PREVIEW_RIVALS = ("future_target", "feedforward")
 FUTURE_TAU = 0.04
-FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.01, 1.0, 0.01
+FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.02, 0.8, 0.01
 
 
 def make_future_target(tau: float = FUTURE_TAU):

@@ -166,6 +166,13 @@ PRESETS.update([
             env=dict(obs_features=OBS_15 + ("tip_error", "prev_action"), obs_stack=3,
                      obs_delay=3, action_delay=3, random_delay=True, w_action_change=0.1,
                      obs_noise=DEPLOY_NOISE), lr_schedule="linear"),
+    # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
+    # presets): the headline's configuration plus the target's future positions over the next
+    # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
+    _preset("v5_err_decay_preview", "v5_err_decay + the target's future positions 0.05-0.3 s "
+            "ahead observed (36-D): knows the planned path",
+            env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
+            lr_schedule="linear"),
 ])
 
 
