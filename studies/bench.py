@@ -208,6 +208,16 @@ def bench_memory(timesteps: int) -> tuple[float, float]:
         return peak, time.perf_counter() - t
 
 
+def cpu_model() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
+    except (OSError, StopIteration):
+        pass
+    return cpu
+
+
 def repo_default() -> dict:
     from panda_lead.training import TrainConfig
 
@@ -281,12 +291,7 @@ def main() -> None:
     peak, wall = bench_memory(20_000 if args.quick else 100_000)
     row("peak memory of `train.py` (defaults, whole process tree, PSS)", f"{peak:,.0f} MB")
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
-    except (OSError, StopIteration):
-        pass
+    cpu = cpu_model()
     header = (f"`{shlex.join(['uv', 'run', 'studies/bench.py', *sys.argv[1:]])}` on {cores} cores "
               f"({cpu}), {time.strftime('%Y-%m-%d')}, Python {platform.python_version()}")
     table = "\n".join([header, "", "| figure | value |", "|---|---|",

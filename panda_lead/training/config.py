@@ -16,7 +16,6 @@ from typing import Literal
 from ..config import MAX_EPISODE_STEPS, EnvConfig
 from ..errors import UserError, check_plain_name
 
-
 MAX_TIMESTEPS = 10**12  # a typo's bound, not a budget: years of training on any machine here
 MAX_THREADS = 1024
 
@@ -73,6 +72,10 @@ class TrainConfig:
     envs in this process."""
     n_workers: int = 0
     """MuJoCo threads stepping the batched envs (0: one per CPU core)."""
+    fast_update: bool = True
+    """Run PPO's update through training/fast_ppo.py's FastPPO: SB3's update, bit-identical
+    (tests/test_fast_ppo.py), with fewer Python-level operations per minibatch; off: SB3's PPO
+    as it comes (docs/performance.md, "Profile of one training iteration")."""
     eval_freq: int = 50_000
     """Evaluate on the fixed evaluation set every this many total steps (0: never)."""
     eval_steps: int = 500
@@ -129,6 +132,8 @@ class TrainConfig:
                 raise UserError(f"--{flag(name)} must be a finite number {rng}, got {v!r}"
                                 if math.isfinite(lo) else f"--{flag(name)} must be finite, got {v!r}")
             set_(name, float(v))
+        if not isinstance(self.fast_update, bool):
+            raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
         if self.lr_schedule not in ("constant", "linear"):
             raise UserError(f"--lr-schedule must be constant or linear, got {self.lr_schedule!r}")
         if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1
@@ -213,9 +218,10 @@ REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=6
 
 # Run-time settings --resume may change; the rest must stay what the run was trained with.
 # torch_threads is not among them: the thread count changes torch's float reductions, and so the
-# trained weights. n_workers (MuJoCo's threads) does not change any result.
+# trained weights. n_workers (MuJoCo's threads) and fast_update (a bit-identical update) do not
+# change any result.
 RESUME_MAY_CHANGE = ("timesteps", "eval_freq", "eval_steps", "checkpoint_freq", "stop_below_cm",
-                     "device", "n_workers")
+                     "device", "n_workers", "fast_update")
 
 
 def read_run_config(run_dir: Path) -> TrainConfig:

@@ -164,8 +164,9 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
 def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, extra,
                   cleanup: ExitStack) -> Path:
     import torch
-    from stable_baselines3 import PPO
     from stable_baselines3.common.utils import set_random_seed
+
+    from .fast_ppo import build_ppo
 
     best = (math.inf, None)
     if args.resume:
@@ -197,14 +198,7 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     logger = make_logger(run_dir / "tb")  # a progress.csv that cannot be continued: one line
     vec = make_vec_env(config.env, config.n_envs, config.seed, config.vec_env, config.n_workers)
     cleanup.callback(vec.close)  # closed on any error from here on (and below on success)
-    ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",
-                                           "gae_lambda", "learning_rate", "clip_range", "ent_coef",
-                                           "target_kl")}
-    if config.lr_schedule == "linear":
-        ppo["learning_rate"] = linear_schedule(config.learning_rate)
-    model = PPO("MlpPolicy", vec, seed=config.seed, device=config.device, verbose=0,
-                policy_kwargs=dict(net_arch=list(config.net_arch), activation_fn=torch.nn.Tanh,
-                                   log_std_init=config.log_std_init), **ppo)
+    model = build_ppo(config, vec)  # FastPPO, or SB3's PPO with --no-fast-update
     if ckpt is not None:
         load_training_state(model, ckpt)  # tensors only, never PPO.load (see models.py)
         model.num_timesteps = int(ckpt_side["timesteps"])

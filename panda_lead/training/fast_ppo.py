@@ -1,0 +1,206 @@
+"""`FastPPO`: stable-baselines3's PPO with the same update in fewer Python-level operations.
+
+At the repo's default (a 64x64 MLP, minibatches of 1,024, 10 epochs) SB3's update is bound by
+Python and torch's per-operation overhead, not by arithmetic: each minibatch step is ~1 ms
+of small operations (docs/performance.md, "Profile of one training iteration"). This subclass
+keeps SB3's algorithm and changes only how it is driven:
+
+- the rollout buffer's flat arrays become torch tensors once per update (SB3 copies each
+  minibatch out of numpy: six fancy-index copies and six tensor constructions per step), and
+  each epoch gathers them once in the permuted order, so a minibatch is a slice (a view);
+- the policy's forward pass for the loss is SB3's `evaluate_actions` written out for the
+  diagonal Gaussian: the same operations in the same order (torch's `Normal.log_prob` and
+  `entropy`), without building a `torch.distributions.Normal` and validating its arguments
+  per minibatch;
+- the logged statistics stay on the tensor side and are read once per update (SB3 calls
+  `.item()` four times per minibatch), giving the same logged values;
+- Adam runs torch's multi-tensor ("foreach") implementation: one kernel per operation over all
+  parameter tensors instead of a loop over them, the same arithmetic (bit-identical here, see
+  the tests; half the optimiser's time).
+
+What stays exactly SB3's: the losses, the minibatches (one `np.random.permutation` per epoch,
+drawn from numpy's global stream as `RolloutBuffer.get` draws it), the number of gradient
+steps, gradient clipping, Adam, the KL early stop. tests/test_fast_ppo.py holds it to
+`PPO.train()`: one update from the same buffer and weights gives bit-identical parameters.
+
+Anything outside the default shape (discrete or non-Gaussian actions, gSDE, a clipped value
+function, dict observations, a custom rollout buffer) runs SB3's own `train()`. Deleting this
+file and constructing `PPO` instead (`--no-fast-update`) is the whole rollback.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import PPO
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.preprocessing import preprocess_obs
+from stable_baselines3.common.utils import explained_variance
+from torch.nn import functional as F
+
+_FLAT = ("observations", "actions", "values", "log_probs", "advantages", "returns")
+_LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))  # the constant torch's Normal.log_prob uses
+_HALF_LOG_2PI_E = 0.5 + 0.5 * math.log(2 * math.pi)  # and Normal.entropy's
+
+
+class FastPPO(PPO):
+    """SB3's PPO; `train()` is the same update with fewer Python-level operations.
+    ``update_threads``: torch threads during the update (the batched env is idle then), the
+    process's own count restored after it; None: leave the count alone."""
+
+    def __init__(self, *args, update_threads: int | None = None, **kwargs):
+        self.update_threads = update_threads
+        super().__init__(*args, **kwargs)
+
+    def _fast_path_applies(self) -> bool:
+        p = self.policy
+        return (isinstance(self.action_space, spaces.Box)
+                and isinstance(self.observation_space, spaces.Box)
+                and type(self.rollout_buffer) is RolloutBuffer
+                and isinstance(p.action_dist, DiagGaussianDistribution)
+                and not p.use_sde and p.share_features_extractor
+                and self.clip_range_vf is None)
+
+    def _evaluate_actions(self, obs: th.Tensor, actions: th.Tensor):
+        """SB3's ActorCriticPolicy.evaluate_actions for a diagonal Gaussian, operation for
+        operation (DiagGaussianDistribution.proba_distribution, then torch's Normal.log_prob,
+        the value head, Normal.entropy, in that order), minus the Distribution objects."""
+        p = self.policy
+        features = p.features_extractor(preprocess_obs(obs, p.observation_space,
+                                                       normalize_images=p.normalize_images))
+        latent_pi, latent_vf = p.mlp_extractor(features)
+        mean_actions = p.action_net(latent_pi)
+        scale = th.ones_like(mean_actions) * p.log_std.exp()
+        var = scale**2
+        log_prob = (-((actions - mean_actions) ** 2) / (2 * var) - scale.log()
+                    - _LOG_SQRT_2PI).sum(dim=1)
+        values = p.value_net(latent_vf)
+        entropy = (_HALF_LOG_2PI_E + th.log(scale)).sum(dim=1)
+        return values, log_prob, entropy
+
+    def _flat_tensors(self) -> dict[str, th.Tensor]:
+        """The buffer's arrays flattened as RolloutBuffer.get flattens them (in place, once per
+        rollout), as torch tensors sharing their memory."""
+        buf = self.rollout_buffer
+        if not buf.generator_ready:
+            for name in _FLAT:
+                buf.__dict__[name] = buf.swap_and_flatten(buf.__dict__[name])
+            buf.generator_ready = True
+        out = {name: th.as_tensor(buf.__dict__[name], device=self.device) for name in _FLAT}
+        for name in _FLAT[2:]:  # (n, 1) -> (n,), as _get_samples' .flatten()
+            out[name] = out[name].flatten()
+        out["actions"] = out["actions"].float()  # as _get_samples' astype(float32)
+        return out
+
+    def train(self) -> None:
+        if self.update_threads is None:
+            return self._train()
+        before = th.get_num_threads()
+        th.set_num_threads(self.update_threads)
+        try:
+            return self._train()
+        finally:
+            th.set_num_threads(before)
+
+    def _train(self) -> None:
+        if not self._fast_path_applies():
+            return super().train()
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
+        flat = self._flat_tensors()
+        n = self.rollout_buffer.buffer_size * self.rollout_buffer.n_envs
+        # SB3: batch_size None in get() means the whole buffer; PPO always passes its own.
+        batch = self.batch_size
+        pg_losses, value_losses, entropy_losses, clip_fractions = [], [], [], []
+        params = list(self.policy.parameters())
+        continue_training = True
+        for epoch in range(self.n_epochs):
+            approx_kl_divs = []
+            # The one random draw of RolloutBuffer.get, from the same stream.
+            order = th.as_tensor(np.random.permutation(n), device=self.device)
+            epoch_data = {name: t[order] for name, t in flat.items()}
+            for start in range(0, n, batch):
+                mb = {name: t[start:start + batch] for name, t in epoch_data.items()}
+                values, log_prob, entropy = self._evaluate_actions(mb["observations"],
+                                                                   mb["actions"])
+                values = values.flatten()
+                advantages = mb["advantages"]
+                if self.normalize_advantage and len(advantages) > 1:
+                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+                ratio = th.exp(log_prob - mb["log_probs"])
+                policy_loss_1 = advantages * ratio
+                policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+                policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+                value_loss = F.mse_loss(mb["returns"], values)
+                entropy_loss = -th.mean(entropy)
+                loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
+                with th.no_grad():
+                    pg_losses.append(policy_loss.detach())
+                    clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
+                    value_losses.append(value_loss.detach())
+                    entropy_losses.append(entropy_loss.detach())
+                    log_ratio = log_prob - mb["log_probs"]
+                    approx_kl_divs.append(th.mean((th.exp(log_ratio) - 1) - log_ratio))
+                # The early stop needs this minibatch's KL now; without it, read it at the end.
+                if self.target_kl is not None and approx_kl_divs[-1].item() > 1.5 * self.target_kl:
+                    continue_training = False
+                    if self.verbose >= 1:
+                        print(f"Early stopping at step {epoch} due to reaching max kl: "
+                              f"{approx_kl_divs[-1].item():.2f}")
+                    break
+                self.policy.optimizer.zero_grad()
+                loss.backward()
+                th.nn.utils.clip_grad_norm_(params, self.max_grad_norm)
+                self.policy.optimizer.step()
+            self._n_updates += 1
+            if not continue_training:
+                break
+        self._record(pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
+                     loss, clip_range)
+
+    def _record(self, pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
+                loss, clip_range) -> None:
+        """SB3's train/ logs, the same values: each list read as Python floats in one call
+        (what SB3's per-minibatch .item() gives), then averaged by numpy as SB3 does."""
+        def floats(ts):
+            return th.stack(ts).tolist() if ts else []
+
+        buf = self.rollout_buffer
+        explained_var = explained_variance(buf.values.flatten(), buf.returns.flatten())
+        log = self.logger.record
+        log("train/entropy_loss", np.mean(floats(entropy_losses)))
+        log("train/policy_gradient_loss", np.mean(floats(pg_losses)))
+        log("train/value_loss", np.mean(floats(value_losses)))
+        # SB3 keeps float32 numpy scalars here (.cpu().numpy()); np.mean of them is float32.
+        log("train/approx_kl", np.mean(np.array(floats(approx_kl_divs), dtype=np.float32)))
+        log("train/clip_fraction", np.mean(floats(clip_fractions)))
+        log("train/loss", loss.item())
+        log("train/explained_variance", explained_var)
+        log("train/std", th.exp(self.policy.log_std).mean().item())
+        log("train/n_updates", self._n_updates, exclude="tensorboard")
+        log("train/clip_range", clip_range)
+
+
+def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None = None) -> PPO:
+    """The PPO model a training run uses, from its TrainConfig: FastPPO when
+    ``config.fast_update`` (or ``fast``) says so, else SB3's PPO as it comes."""
+    from .loop import linear_schedule
+
+    fast = getattr(config, "fast_update", True) if fast is None else fast
+    ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",
+                                           "gae_lambda", "learning_rate", "clip_range", "ent_coef",
+                                           "target_kl")}
+    if config.lr_schedule == "linear":
+        ppo["learning_rate"] = linear_schedule(config.learning_rate)
+    policy_kwargs = dict(net_arch=list(config.net_arch), activation_fn=th.nn.Tanh,
+                         log_std_init=config.log_std_init)
+    if fast:
+        ppo["update_threads"] = update_threads
+        policy_kwargs["optimizer_kwargs"] = dict(eps=1e-5, foreach=True)  # SB3's eps for PPO
+    return (FastPPO if fast else PPO)("MlpPolicy", vec, seed=config.seed, device=config.device,
+                                      verbose=0, policy_kwargs=policy_kwargs, **ppo)
