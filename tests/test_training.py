@@ -65,6 +65,10 @@ def test_a_preset_names_exactly_what_a_flag_trained_study_ran(study, preset):
         named = PRESETS[preset].to_dict()
         for key in ("seed", "preset"):
             trained.pop(key), named.pop(key)
+        # Summaries from before fast_update ran SB3's PPO, whose update FastPPO repeats bit
+        # for bit (tests/test_fast_ppo.py): the field does not change what a run learns.
+        if "fast_update" not in trained:
+            named.pop("fast_update")
         assert trained == named, f.name
 
 
