@@ -2,7 +2,7 @@
 per-trajectory spread, then rank models and studies on it, like for like, with the tie rule.
 
     uv run studies/selection.py size > results/studies/rank/sizing.md
-    uv run studies/selection.py score archive/seeds/v7_s1.zip ...   # -> results/studies/rank/scores/
+    uv run studies/selection.py score --models archive/v5_err_decay_s4.zip ...  # -> rank/scores/
     uv run studies/selection.py rank > results/studies/rank/rank.md
 
 **Sizing.** The two closest studies of the old rank (the headline study's chosen model and the
@@ -43,7 +43,7 @@ DELTA_CM = 0.05
 
 @dataclass
 class Args:
-    command: Literal["size", "score", "rank"]
+    command: tyro.conf.Positional[Literal["size", "score", "rank"]]
     models: tuple[Path, ...] = ()
     """score: the model zips to play on the selection set."""
     model_a: Path = Path("archive/v5_err_decay_s4.zip")
