@@ -1,6 +1,7 @@
 """The project as a third party gets it: installed (not editable) into a fresh virtual
 environment from the lock file, offline from uv's cache, then used from a folder outside the
-repository with no PYTHONPATH: the env by id, a model card's snippet, 2,048 steps of SB3."""
+repository with no PYTHONPATH: the env by id, a model card's snippet, 2,048 steps of SB3, and
+the ``panda-lead`` console command (its help, a rollout set, adopting the SB3 model)."""
 
 from __future__ import annotations
 
@@ -127,7 +128,8 @@ def test_a_model_cards_snippet_runs_from_any_folder(installed, tmp_path):
     assert out.stdout.strip() == f"test seed 0: mean error {promised} cm"
 
 
-def test_sb3_trains_on_the_installed_env(installed, tmp_path):
+def test_sb3_trains_on_the_installed_env_and_the_installed_command_adopts_it(installed,
+                                                                             tmp_path):
     code = """
 import gymnasium as gym, torch
 from stable_baselines3 import PPO
@@ -136,11 +138,46 @@ torch.set_num_threads(1)  # stock SB3 on 2 cores is several times slower without
 model = PPO("MlpPolicy", gym.make("PandaLead-v0"), n_steps=1024, batch_size=256, n_epochs=1,
             device="cpu", seed=0)
 model.learn(2048)
+model.save("mine.zip")
 print("steps", model.num_timesteps)
 """
     out = run_outside(installed, code, tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "steps 2048"
+    # eval --adopt from the installed package (issue 40: it needed the checkout's eval.py)
+    out = run_command(installed, ["eval", "--adopt", "mine.zip", "--name", "mine"], tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    written = {p.name for p in (tmp_path / "archive").iterdir()}
+    assert {"mine.zip", "mine.json", "mine.md"} <= written, written
+    again = run_command(installed, ["eval", "--adopt", "mine.zip", "--name", "mine"], tmp_path)
+    assert again.returncode == 2 and "choose another --name name" in again.stderr
+
+
+def run_command(python: Path, argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """The installed ``panda-lead`` console command (beside the venv's python), run in ``cwd``
+    with nothing of the checkout on the path."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    return run_group([python.parent / "panda-lead", *argv], timeout=900, cwd=cwd, env=env)
+
+
+def test_the_installed_console_command_runs_outside_the_checkout(installed, tmp_path):
+    out = run_command(installed, ["--help"], tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    for name in ("train", "eval", "ikpd", "metrics", "env", "trajectory"):
+        assert f"  {name} " in out.stdout, out.stdout
+    helps = {name: run_command(installed, [name, "--help"], tmp_path)
+             for name in ("eval", "train", "metrics")}
+    for name, out in helps.items():
+        assert out.returncode == 0, (name, out.stderr[-2000:])
+        assert out.stdout.startswith(f"usage: panda-lead {name} "), out.stdout[:200]
+    assert "--adopt PATH.zip --name NAME" in helps["eval"].stdout
+    out = run_command(installed, ["ikpd", "--seeds", "0-1", "--prefix", "c", "--duration",
+                                  "0.2"], tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "rollouts" / "c").glob("seed_*.npz")) == [
+        "seed_0000.npz", "seed_0001.npz"]
+    out = run_command(installed, ["evl"], tmp_path)
+    assert out.returncode == 2 and out.stderr.startswith("error: unknown command 'evl'")
 
 
 def test_the_declared_mujoco_floor_has_the_batch_api_the_core_needs():
