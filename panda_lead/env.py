@@ -66,22 +66,25 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     ## Observation space
     ``Box(-inf, inf, (n,), float32)``: the selected features, always in this order:
 
-    | feature       | size | meaning (world frame)                                | divided by |
-    |---------------|------|------------------------------------------------------|------------|
-    | ee_pos        | 3    | tip position (m)                                     | 1          |
-    | ee_vel        | 3    | tip velocity, finite difference over one step (m/s)  | 2.5        |
-    | target_pos    | 3    | target position (m)                                  | 1          |
-    | target_vel    | 3    | target velocity, analytic (m/s)                      | 2.5        |
-    | target_acc    | 3    | target acceleration, analytic (m/s^2)                | 30         |
-    | joint_pos     | 7    | arm joint angles (rad)                               | 1          |
-    | joint_vel     | 7    | arm joint velocities (rad/s)                         | 2.5        |
-    | prev_action   | 3    | the previous action, in [-1, 1]                      | 1          |
-    | tip_error     | 3    | tip minus target (m)                                 | 0.05       |
-    | tip_error_avg | 3    | its running average, clipped per axis (m; see below) | 0.01       |
+    | feature        | size | meaning (world frame)                                | divided by |
+    |----------------|------|------------------------------------------------------|------------|
+    | ee_pos         | 3    | tip position (m)                                     | 1          |
+    | ee_vel         | 3    | tip velocity, finite difference over one step (m/s)  | 2.5        |
+    | target_pos     | 3    | target position (m)                                  | 1          |
+    | target_vel     | 3    | target velocity, analytic (m/s)                      | 2.5        |
+    | target_acc     | 3    | target acceleration, analytic (m/s^2)                | 30         |
+    | joint_pos      | 7    | arm joint angles (rad)                               | 1          |
+    | joint_vel      | 7    | arm joint velocities (rad/s)                         | 2.5        |
+    | prev_action    | 3    | the previous action, in [-1, 1]                      | 1          |
+    | tip_error      | 3    | tip minus target (m)                                 | 0.05       |
+    | tip_error_avg  | 3    | its running average, clipped per axis (m; see below) | 0.01       |
+    | target_preview | 18   | p(t + h) - p(t), h in preview_times (m; see below)   | 0.1        |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
     gives the index ranges. ``tip_error_avg`` moves each step ``dt/error_avg_time`` of the way
     towards the tip error clipped per axis at ``error_avg_clip``; it is 0 at reset.
+    ``target_preview`` KNOWS THE PLANNED PATH (a labelled variant, never mixed with the causal
+    results): the target's future positions relative to now, from the analytic trajectory.
     ``obs_noise`` adds Gaussian noise (std per feature, in the feature's physical unit) to what
     the policy sees; the IK target is always the true target.
 
@@ -225,7 +228,9 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
                 "episode_steps; give one of the two")
         self.cfg = self.cfg.replace(episode_steps=steps)  # checked as any setting is
         self.close()  # frames and viewer were bound to the old core
+        cap = self.task.speed_cap  # a curriculum's cap, set before this first reset
         self.task = SingleTask(self.cfg, 1, nthread=1)  # its paths are sized by the length
+        self.task.set_speed_cap(cap)
         self.core = self.task.core
         if self._spec is not None:
             self.spec = self._spec  # the setter reports the new length

@@ -94,6 +94,14 @@ def test_a_shorter_time_limit_sets_the_length_too():
     assert _episode_length(e) == 9  # the second episode too
 
 
+def test_a_time_limit_keeps_a_speed_cap_set_before_the_first_reset():
+    e = gym.make("PandaLead-v0", max_episode_steps=LONG)
+    e.unwrapped.set_speed_cap(1.0)  # the curriculum sets it before training's first reset
+    e.reset(seed=0)
+    assert e.unwrapped.cfg.episode_steps == LONG and e.unwrapped.task.speed_cap == 1.0
+    assert e.unwrapped.traj.peak_speed <= 1.0
+
+
 # --- copies --------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("make", [
