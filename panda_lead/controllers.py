@@ -177,6 +177,7 @@ def make_predicting_analytic(tau: float = DEFAULT_TAU):
 PREVIEW_RIVALS = ("future_target", "feedforward")
 FUTURE_TAU = 0.04
 FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.02, 0.8, 0.01
+FEEDFORWARD_CLIP = True  # the correction clipped to what the motors can push (2.13 cm, not 2.77)
 
 
 def make_future_target(tau: float = FUTURE_TAU):
@@ -187,9 +188,9 @@ def make_future_target(tau: float = FUTURE_TAU):
 
 
 def make_feedforward(tau: float = FEEDFORWARD_TAU, gain: float = FEEDFORWARD_GAIN,
-                     tau_ik: float | None = FEEDFORWARD_TAU_IK):
+                     tau_ik: float | None = FEEDFORWARD_TAU_IK, clip: bool = FEEDFORWARD_CLIP):
     """Joint goals that invert the simulated servos on the planned joint path (action
     joint_target): see preview.make_feedforward."""
     from .preview import make_feedforward as make
 
-    return make(tau, gain, tau_ik)
+    return make(tau, gain, tau_ik, clip)

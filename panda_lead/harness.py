@@ -124,7 +124,7 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
     if name == "feedforward":
         meta["tau"] = controllers.FEEDFORWARD_TAU if tau is None else tau
         meta.update(knows_path=True, gain=controllers.FEEDFORWARD_GAIN,
-                    tau_ik=controllers.FEEDFORWARD_TAU_IK)
+                    tau_ik=controllers.FEEDFORWARD_TAU_IK, clip=controllers.FEEDFORWARD_CLIP)
         return Controller(name, config.replace(action="joint_target"), meta,
                           controllers.make_feedforward(meta["tau"]), dropped=dropped)
     ilc = ilc or ILCConfig()

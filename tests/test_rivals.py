@@ -120,3 +120,23 @@ def test_a_rival_refuses_the_wrong_action_kind(name):
            "feedforward": controllers.make_feedforward}[name]()
     with pytest.raises(ValueError, match="needs action"):
         act(obs, task)
+
+
+def test_the_clipped_correction_asks_no_motor_for_more_than_its_force_range():
+    """On the planned path the goal's force kp (u - q_d) - kv qd_d stays within each motor's
+    forcerange once clipped; unclipped, a fast path asks for more (else the test shows
+    nothing)."""
+    task = LeadTask(EnvConfig(episode_steps=60), 1)
+    task.reset(None, [38])  # a fast circle near the workspace's edge (test seed 38)
+    m = load_model()
+    kp, kv = m.actuator_gainprm[:N_JOINTS, 0], -m.actuator_biasprm[:N_JOINTS, 2]
+    limit = m.actuator_forcerange[:N_JOINTS, 1]
+    forces = {}
+    for clip in (False, True):
+        cache = preview._PathCache(0.0, joint_path=True, clip=clip)
+        cache.update(task)
+        q, corr = cache.goal[0, :, :, 0], cache.goal[0, :, :, 1]
+        qd = np.gradient(q, task.dt, axis=0)
+        forces[clip] = kp * corr - kv * qd
+    assert (np.abs(forces[True]) <= limit + 1e-9).all()
+    assert (np.abs(forces[False]) > limit).any()
