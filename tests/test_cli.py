@@ -1,4 +1,8 @@
-"""The scripts end to end, as a user runs them, in subprocesses with tiny budgets."""
+"""The scripts end to end, as a user runs them, with tiny budgets: the training run is the
+session's shared tiny run (conftest.tiny_run: train.py in a subprocess, then resumed and
+archived); eval.py and ikpd.py are called in-process through their main functions (the exit
+status from SystemExit, output from capsys), and as processes where the process is the point
+(a real exit status 2 and its one stderr line)."""
 
 import json
 import subprocess
@@ -7,6 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import main_exit
+
+from panda_lead.cli.main import eval_command, ikpd_command
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -17,27 +24,15 @@ def run(*args, cwd=ROOT, timeout=600):
                                                            "MUJOCO_GL": "egl"})
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A tiny training run (DummyVecEnv keeps it light), resumed once, then archived."""
-    tmp = tmp_path_factory.mktemp("train")
-    common = ["--n-envs", "2", "--n-steps", "64", "--batch-size", "64", "--n-epochs", "1",
-              "--eval-freq", "256", "--eval-steps", "50", "--checkpoint-freq", "128",
-              "--runs-dir", tmp / "runs", "--no-progress"]
-    first = run(ROOT / "train.py", "--timesteps", "256", "--vec-env", "subproc", *common,
-                cwd=tmp)
-    assert first.returncode == 0, first.stderr
-    runs = list((tmp / "runs").iterdir())
-    assert len(runs) == 1
-    run_dir = runs[0]
-    resumed = run(ROOT / "train.py", "--resume", run_dir, "--timesteps", "512",
-                  "--archive", "tiny", *common, cwd=tmp)
-    assert resumed.returncode == 0, resumed.stderr
-    return tmp, run_dir, first, resumed
+@pytest.fixture
+def in_tmp(tmp_path, monkeypatch):
+    """The scripts write rollouts/ under the working folder: make it this test's."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
 
 
-def test_train_leaves_a_complete_run_folder(trained):
-    tmp, run_dir, first, _ = trained
+def test_train_leaves_a_complete_run_folder(tiny_run):
+    tmp, run_dir, first, _ = tiny_run
     for name in ("config.json", "command.txt", "final_model.zip", "final_model.json",
                  "best_model.zip", "best_model.json"):
         assert (run_dir / name).is_file(), name
@@ -47,8 +42,8 @@ def test_train_leaves_a_complete_run_folder(trained):
     assert config["n_steps"] == 64 and config["n_envs"] == 2 and config["env"]["max_lead"] == 0.15
 
 
-def test_resume_continues_the_step_counter_and_archives(trained):
-    tmp, run_dir, _, resumed = trained
+def test_resume_continues_the_step_counter_and_archives(tiny_run):
+    tmp, run_dir, _, resumed = tiny_run
     side = json.loads((run_dir / "final_model.json").read_text())
     assert side["timesteps"] >= 512
     assert "resuming" in resumed.stdout
@@ -65,12 +60,13 @@ def test_resume_continues_the_step_counter_and_archives(trained):
     assert 0 < meta["test_metrics"]["mean_error_cm"] < 100
 
 
-def test_archived_model_loads_and_runs_on_seeds(trained):
-    tmp, *_ = trained
-    out = run(ROOT / "eval.py", "--seeds", "0-1", "--prefix", "tiny", "--model",
-              tmp / "archive" / "tiny.zip", "--duration", "0.5", cwd=tmp)
-    assert out.returncode == 0, out.stderr
-    files = sorted((tmp / "rollouts" / "tiny").glob("seed_*.npz"))
+def test_archived_model_loads_and_runs_on_seeds(tiny_run, in_tmp, capsys):
+    tmp, *_ = tiny_run
+    code, _, err = main_exit(eval_command, ["--seeds", "0-1", "--prefix", "tiny", "--model",
+                                            tmp / "archive" / "tiny.zip", "--duration", "0.5"],
+                             capsys)
+    assert code == 0, err
+    files = sorted((in_tmp / "rollouts" / "tiny").glob("seed_*.npz"))
     assert [f.name for f in files] == ["seed_0000.npz", "seed_0001.npz"]
     from panda_lead.rollout import load
 
@@ -79,21 +75,24 @@ def test_archived_model_loads_and_runs_on_seeds(trained):
     assert len(r.t) == 50
 
 
-def test_ikpd_writes_rollouts_and_prints_errors(tmp_path):
-    out = run(ROOT / "ikpd.py", "--seeds", "3-4", "--prefix", "ikpd", "--duration", "1",
-              cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
-    assert "seed    3" in out.stdout and "cm" in out.stdout
+def test_ikpd_writes_rollouts_and_prints_errors(in_tmp, capsys):
+    tmp_path = in_tmp
+    code, stdout, err = main_exit(ikpd_command, ["--seeds", "3-4", "--prefix", "ikpd",
+                                                 "--duration", "1"], capsys)
+    assert code == 0, err
+    assert "seed    3" in stdout and "cm" in stdout
     from panda_lead.rollout import load
 
     r = load(tmp_path / "rollouts" / "ikpd" / "seed_0003.npz")
     assert r.meta["controller"] == "classical" and np.all(r.lead == 0)
 
 
-def test_analytic_controller_uses_a_nonzero_lead(tmp_path):
-    out = run(ROOT / "ikpd.py", "--seeds", "5", "--prefix", "an", "--controller", "analytic",
-              "--tau", "0.05", "--duration", "0.5", cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
+def test_analytic_controller_uses_a_nonzero_lead(in_tmp, capsys):
+    tmp_path = in_tmp
+    code, _, err = main_exit(ikpd_command, ["--seeds", "5", "--prefix", "an", "--controller",
+                                            "analytic", "--tau", "0.05", "--duration", "0.5"],
+                             capsys)
+    assert code == 0, err
     from panda_lead.rollout import load
 
     r = load(tmp_path / "rollouts" / "an" / "seed_0005.npz")
@@ -116,21 +115,33 @@ def test_analytic_controller_uses_a_nonzero_lead(tmp_path):
     (["--seeds", "0-1", "--env.ik.iters", "0"], "ik.iters must be in [1, 100]"),
     (["--seeds", "0-1", "--duration", "nan"], "--duration must be a number of seconds in (0, 1000]"),
     (["--seeds", "0-1", "--duration", "1e9"], "--duration must be a number of seconds in (0, 1000]"),
-    (["--seed", "9223372036854775808", "--video", "v.mp4"], "--seed must be an integer in 0..2^63-1"),
+    (["--seed", "9223372036854775808", "--video", "v.mp4"],
+     "--seed must be an integer in 0..9223372036854775807 (2^63-1)"),
 ])
-def test_bad_input_is_one_clear_line(tmp_path, bad, message):
-    out = run(ROOT / "ikpd.py", *bad, cwd=tmp_path)
-    assert out.returncode == 2
-    assert message in out.stderr and "Traceback" not in out.stderr
-    assert out.stderr.count("\n") == 1  # one line
+def test_bad_input_is_one_clear_line(in_tmp, capsys, bad, message):
+    tmp_path = in_tmp
+    code, _, err = main_exit(ikpd_command, bad, capsys)
+    assert code == 2
+    assert message in err and "Traceback" not in err
+    assert err.count("\n") == 1  # one line
     assert not (tmp_path / "rollouts").exists() and not (tmp_path / "x.mp4").exists()
 
 
-def test_typed_env_flags_apply_over_the_models_sidecar(tmp_path):
-    out = run(ROOT / "ikpd.py", "--seeds", "1", "--prefix", "n", "--duration", "0.2",
-              "--controller", "analytic", "--env.obs-noise", "target_vel", "0.05",
-              "--env.max-lead", "0.1", cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
+def test_bad_input_is_exit_status_2_and_one_line_from_the_process(tmp_path):
+    """The same refusal as the process gives it (the cases above run in-process)."""
+    out = run(ROOT / "ikpd.py", "--seeds", "5-", cwd=tmp_path)
+    assert out.returncode == 2
+    assert "malformed seed range" in out.stderr and "Traceback" not in out.stderr
+    assert out.stderr.count("\n") == 1 and not (tmp_path / "rollouts").exists()
+
+
+def test_typed_env_flags_apply_over_the_models_sidecar(in_tmp, capsys):
+    tmp_path = in_tmp
+    code, _, err = main_exit(ikpd_command, ["--seeds", "1", "--prefix", "n", "--duration", "0.2",
+                                            "--controller", "analytic", "--env.obs-noise",
+                                            "target_vel", "0.05", "--env.max-lead", "0.1"],
+                             capsys)
+    assert code == 0, err
     from panda_lead.rollout import load
 
     r = load(tmp_path / "rollouts" / "n" / "seed_0001.npz")
@@ -138,25 +149,27 @@ def test_typed_env_flags_apply_over_the_models_sidecar(tmp_path):
     assert r.meta["env"]["w_distance"] == 1.0  # untouched fields keep their value
 
 
-def test_video_is_a_playable_mp4(tmp_path):
-    out = run(ROOT / "ikpd.py", "--seed", "2", "--duration", "0.3", "--video",
-              tmp_path / "v.mp4", cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
+def test_video_is_a_playable_mp4(in_tmp, capsys):
+    tmp_path = in_tmp
+    code, _, err = main_exit(ikpd_command, ["--seed", "2", "--duration", "0.3", "--video",
+                                            tmp_path / "v.mp4"], capsys)
+    assert code == 0, err
     import imageio.v2 as imageio
 
     frames = imageio.mimread(tmp_path / "v.mp4")
     assert len(frames) == 15 and frames[0].shape == (480, 640, 3)
 
 
-def test_the_default_model_is_the_headline_model_whatever_the_file_times(tmp_path):
+def test_the_default_model_is_the_headline_model_whatever_the_file_times(in_tmp, capsys):
     """Regression (issue 21): the default was "the newest zip in archive/" by mtime, which git
     does not keep, so a fresh clone played whichever file was checked out last."""
     from panda_lead.models import DEFAULT_MODEL, file_sha256
 
     headline = ROOT / "archive" / f"{DEFAULT_MODEL}.zip"
-    out = run(ROOT / "eval.py", "--seeds", "0", "--prefix", "x", "--duration", "0.05",
-              cwd=tmp_path)
-    assert out.returncode == 0, out.stderr
+    tmp_path = in_tmp
+    code, _, err = main_exit(eval_command, ["--seeds", "0", "--prefix", "x", "--duration",
+                                            "0.05"], capsys)
+    assert code == 0, err
     with np.load(tmp_path / "rollouts" / "x" / "seed_0000.npz", allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
     newest = max((ROOT / "archive").glob("*.zip"), key=lambda p: p.stat().st_mtime)

@@ -14,8 +14,9 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from conftest import one_line
+from conftest import one_line, one_line_in_process
 
+from panda_lead.cli.train import main as train_main
 from panda_lead.cli.train import parse_args
 from panda_lead.errors import UserError
 from panda_lead.training import TrainConfig
@@ -42,7 +43,8 @@ def tiny_run(tmp_path: Path) -> Path:
 
 # --- item 4: resume keeps what the run learns ---------------------------------------------------
 
-def test_resume_refuses_reference_hparams_and_a_new_torch_thread_count(tmp_path):
+def test_resume_refuses_reference_hparams_and_a_new_torch_thread_count(tmp_path, monkeypatch,
+                                                                      capsys):
     run_dir = tiny_run(tmp_path)
     with pytest.raises(UserError, match="--reference-hparams changes what a run learns"):
         parse_args(["--resume", str(run_dir), "--reference-hparams"])
@@ -50,10 +52,11 @@ def test_resume_refuses_reference_hparams_and_a_new_torch_thread_count(tmp_path)
     with pytest.raises(UserError, match="--torch-threads cannot change"):
         parse_args(["--resume", str(run_dir), "--torch-threads", "2"])
     before = sorted(p.name for p in run_dir.iterdir())
-    out = run(ROOT / "train.py", "--resume", run_dir, "--reference-hparams", cwd=tmp_path)
-    one_line(out, "--reference-hparams", "--resume")
-    out = run(ROOT / "train.py", "--resume", run_dir, "--torch-threads", "2", cwd=tmp_path)
-    one_line(out, "--torch-threads cannot change")
+    monkeypatch.chdir(tmp_path)
+    one_line_in_process(train_main, ["--resume", run_dir, "--reference-hparams"], capsys,
+                        "--reference-hparams", "--resume")
+    one_line_in_process(train_main, ["--resume", run_dir, "--torch-threads", "2"], capsys,
+                        "--torch-threads cannot change")
     assert sorted(p.name for p in run_dir.iterdir()) == before
 
 
@@ -65,15 +68,15 @@ def test_resume_refuses_reference_hparams_and_a_new_torch_thread_count(tmp_path)
     ("[1, 2]", ["unreadable run config", "JSON object"]),
 ])
 def test_resume_refuses_a_config_json_that_is_not_the_runs(untrained_checkpoint_run, content,
-                                                           words):
+                                                           words, monkeypatch, capsys):
     """`{}` parses as train.py's defaults: the checkpoint (bound to its sidecar, which holds
     the config it was trained with) says otherwise. A string or a list is no config at all."""
     run_dir = untrained_checkpoint_run
     (run_dir / "config.json").write_text(content)
     files = lambda: sorted(p.name for p in run_dir.rglob("*") if p.name != ".lock")  # noqa: E731
     before = files()
-    out = run(ROOT / "train.py", "--resume", run_dir, cwd=run_dir.parent)
-    one_line(out, *words)
+    monkeypatch.chdir(run_dir.parent)
+    one_line_in_process(train_main, ["--resume", run_dir], capsys, *words)
     assert files() == before  # (the run's lock file aside: taking the lock is harmless)
 
 
@@ -197,22 +200,22 @@ def test_an_absurd_learning_rate_is_refused():
 
 # --- item 26: huge reward weights, and a run whose weights stop being finite --------------------
 
-def test_huge_reward_weights_are_refused_in_one_line(tmp_path):
+def test_huge_reward_weights_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
     with pytest.raises(UserError, match=r"w_alive must be within \+-1e\+06"):
         parse_args(["--env.w-alive", "-1e308"])
-    out = run(ROOT / "train.py", "--env.w-alive", "-1e308", "--runs-dir", tmp_path / "runs",
-              cwd=tmp_path)
-    one_line(out, "w_alive must be within")
+    monkeypatch.chdir(tmp_path)
+    one_line_in_process(train_main, ["--env.w-alive", "-1e308", "--runs-dir", tmp_path / "runs"],
+                        capsys, "w_alive must be within")
     assert not (tmp_path / "runs").exists()
 
 
-DIVERGE_CHILD = textwrap.dedent("""
-    import sys
+def diverge_every_update(monkeypatch) -> None:
+    """The first update diverges: every weight becomes NaN after Adam's step."""
     import torch
 
     plain_step = torch.optim.Adam.step
 
-    def step(self, *a, **k):  # the first update diverges: every weight becomes NaN
+    def step(self, *a, **k):
         out = plain_step(self, *a, **k)
         with torch.no_grad():
             for group in self.param_groups:
@@ -220,13 +223,11 @@ DIVERGE_CHILD = textwrap.dedent("""
                     p.fill_(float("nan"))
         return out
 
-    torch.optim.Adam.step = step
-    from panda_lead.cli.train import main
-    main(sys.argv[1:])
-""")
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
 
 
-def test_a_diverged_run_stops_with_one_line_and_keeps_its_last_good_checkpoint(tmp_path):
+def test_a_diverged_run_stops_with_one_line_and_keeps_its_last_good_checkpoint(
+        tmp_path, monkeypatch, capsys):
     """A diverged update (here forced: every weight NaN after the first one) is stopped by
     FiniteWeights before the next rollout: one line, exit 2, and the checkpoint taken before
     the update stays the newest model; nothing is saved from the diverged weights. One
@@ -236,13 +237,14 @@ def test_a_diverged_run_stops_with_one_line_and_keeps_its_last_good_checkpoint(t
 
     from panda_lead.models import load_policy
 
-    child = tmp_path / "child.py"
-    child.write_text(DIVERGE_CHILD)
+    diverge_every_update(monkeypatch)
+    monkeypatch.chdir(tmp_path)
     runs = tmp_path / "runs"
-    out = run(child, "--timesteps", "512", "--eval-freq", "0", "--checkpoint-freq", "128",
-              "--runs-dir", runs, "--n-envs", "2", "--n-steps", "64", "--batch-size", "128",
-              "--n-epochs", "1", "--n-workers", "1", "--no-progress", cwd=tmp_path)
-    one_line(out, "training diverged at 128 steps", "no longer finite")
+    one_line_in_process(train_main, [
+        "--timesteps", "512", "--eval-freq", "0", "--checkpoint-freq", "128", "--runs-dir", runs,
+        "--n-envs", "2", "--n-steps", "64", "--batch-size", "128", "--n-epochs", "1",
+        "--n-workers", "1", "--no-progress"], capsys, "training diverged at 128 steps",
+        "no longer finite")
     (run_dir,) = runs.iterdir()
     saved = sorted(p.relative_to(run_dir).as_posix() for p in run_dir.rglob("*.zip"))
     assert saved == ["checkpoints/model_128_steps.zip"]
