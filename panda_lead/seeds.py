@@ -12,7 +12,7 @@
 | distill| 3000000..3099999            | drawn from the seed    | studies/distill.py's teacher data:   |
 |        | (training seed k: its own   |                        | the ILC oracle's leads to regress on |
 |        | slice of DISTILL_SLICE)     |                        |                                      |
-| select | 5000000..5002377         | drawn from the seed    | ranking studies and models           |
+| select | 5000000..5002377            | drawn from the seed    | ranking studies and models           |
 |        |                             |                        | (studies/selection.py; issue 37)     |
 """
 

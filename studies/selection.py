@@ -14,7 +14,7 @@ time: n = ((1.96 + 0.84) s / 0.05)^2. No test seed is played.
 **Scoring.** Every model plays the selection set under the default evaluation env (harness:
 training-only randomisations dropped: the delay- and noise-trained models are scored under the
 same conditions as the rest); per trajectory its mean error (cm) and tip jerk RMS (m/s^3) are
-kept in results/studies/rank/scores/<name>.json (a few kB: the rank re-derives from git).
+kept in results/studies/rank/scores/<name>.json (about 40 kB: the rank re-derives from git).
 
 **Ranking** (studies/runs.py tie_ranked): a study is the per-trajectory mean over its seeds'
 models (archive/seeds/<study>_s<k>.zip); ordered by mean error; two neighbours whose paired 95%
