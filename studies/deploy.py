@@ -249,12 +249,18 @@ def _commit() -> str:
 def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     """Mean error against mean tip jerk: one point per controller per condition, 95% CIs of
     the error; a controller's points joined in condition order. Lower left is better."""
-    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
+    from panda_lead.metrics.figures import COLOURS, pyplot, save_figure
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 6.5), constrained_layout=True)
     names = list(dict.fromkeys(r["name"] for r in rows))
-    colours = colours_for(names)
+    # the baselines keep the repo's colours; the rest take tab10's others (never grey, the
+    # reference lines' colour), then tab20's light shades
+    used = set(COLOURS.values()) | {"tab:gray"}
+    palette = iter([c for c in (f"tab:{k}" for k in ("green", "red", "purple", "brown", "pink",
+                                                        "olive", "cyan")) if c not in used]
+                   + list(plt.get_cmap("tab20").colors[1::2]))
+    colours = {n: COLOURS.get(n) or next(palette) for n in names}
     markers = dict(zip(CONDITIONS, ("o", "s", "D", "^", "v"), strict=True))
     for name in names:
         pts = [r for r in rows if r["name"] == name]
