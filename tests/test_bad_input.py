@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import one_line
+from conftest import one_line, run_in_process
 
 from panda_lead import rollout
 from panda_lead.errors import UserError
@@ -27,9 +27,15 @@ ENV = {**os.environ, "MUJOCO_GL": "egl", "PYTHONIOENCODING": "utf-8"}
 T = 50
 
 
-def run(*args, cwd, timeout=600):
+def run_process(*args, cwd, timeout=600):
     return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=ENV)
+
+
+def run(script, *args, cwd, timeout=None):
+    """The script in-process (conftest.run_in_process): the same exit status and output,
+    without a process per case; the tyro errors and the sweep below run as processes."""
+    return run_in_process(script, *args, cwd=cwd)
 
 
 def a_rollout(seed: int, offset: float = 0.02) -> Rollout:
@@ -138,12 +144,16 @@ def test_eval_video_keeps_an_existing_file_without_force(tmp_path):
 
 def test_collision_study_keeps_an_existing_table_and_seeds_without_force(tmp_path):
     table, seeds = tmp_path / "c.md", tmp_path / "c_seeds.txt"
-    few = tmp_path / "few.txt"
+    few, enough = tmp_path / "few.txt", tmp_path / "enough.txt"
     few.write_text("1\n2\n3\n")
+    enough.write_text("".join(f"{s}\n" for s in range(1, 11)))  # collision.MIN_SUBSET seeds
     table.write_text("mine")
-    study = (ROOT / "studies" / "collision.py", "--models", ROOT / "archive" / "v5_5m.zip",
-             "--out", table)
-    one_line(run(*study, "--subset", few, cwd=tmp_path), "c.md exists", "--force")
+    script = ROOT / "studies" / "collision.py"
+    study = (script, "--models", ROOT / "archive" / "v5_5m.zip", "--out", table)
+    one_line(run(*study, "--subset", enough, cwd=tmp_path), "c.md exists", "--force")
+    # Every value is checked before any output is claimed (RELIABILITY-4 #31): a subset too
+    # small is refused first, the table untouched.
+    one_line(run(*study, "--subset", few, cwd=tmp_path), "only 3 collision-prone seeds")
     # Finding the subset would write the seeds file beside the table: refused before the scan.
     table.unlink()
     seeds.write_text("7\n")
@@ -151,9 +161,9 @@ def test_collision_study_keeps_an_existing_table_and_seeds_without_force(tmp_pat
     # Reading the seeds back from that file does not write it, so nothing is in the way.
     one_line(run(*study, "--subset", seeds, cwd=tmp_path), "only 1 collision-prone seeds")
     table.write_text("mine")
-    # --force passes the check (and stops at the next one: three seeds are too few).
-    one_line(run(*study, "--subset", few, "--force", cwd=tmp_path),
-             "only 3 collision-prone seeds")
+    # --force passes the check (and stops at the next one: no model named).
+    one_line(run(script, "--out", table, "--subset", enough, "--force", cwd=tmp_path),
+             "name at least one --models")
     assert table.read_text() == "mine" and seeds.read_text() == "7\n"
 
 
@@ -267,7 +277,7 @@ def test_an_absurd_duration_is_one_line(tmp_path):
                                                          "--train-args=\"--n-envs 4"]),
 ])
 def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, words):
-    one_line(run(ROOT / script, *args, cwd=tmp_path), *words)
+    one_line(run_process(ROOT / script, *args, cwd=tmp_path), *words)
     assert not any(tmp_path.iterdir())
 
 
@@ -287,7 +297,7 @@ def test_a_bad_type_in_eval_or_train_is_one_line(tmp_path, script, args):
 # --- the sweep: items 14, 15, 24 --------------------------------------------------------------
 
 def sweep(*args, cwd):
-    return run(ROOT / "studies" / "sweep.py", *args, cwd=cwd, timeout=600)
+    return run_process(ROOT / "studies" / "sweep.py", *args, cwd=cwd, timeout=600)
 
 
 @pytest.mark.slow  # eight sweep.py processes; the default tier checks the sweep's input once

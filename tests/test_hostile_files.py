@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import one_line
+from conftest import one_line, run_in_process
 
 from panda_lead import models, rollout, trajectory
 from panda_lead.rollout import Rollout, RolloutError
@@ -31,7 +31,14 @@ ENV = {**os.environ, "MUJOCO_GL": "egl"}
 T = 50
 
 
-def run(*args, cwd, timeout=600, **kw):
+def run(script, *args, cwd, timeout=None):
+    """The script in-process (conftest.run_in_process): its exit status and output, without
+    a process (and an `import torch`) per case."""
+    return run_in_process(script, *args, cwd=cwd)
+
+
+def run_process(*args, cwd, timeout=600, **kw):
+    """As a process, where the process is the point (its own address-space limit)."""
     return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=ENV, **kw)
 
@@ -150,8 +157,9 @@ def test_metrics_on_a_zip_bomb_is_one_line_within_a_2_gib_address_space(bomb):
     def limit():
         resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
 
-    out = run(ROOT / "metrics.py", "--root", bomb.parent.parent, "--prefix-a", "good",
-              "--prefix-b", "bomb", "--bootstrap", "200", cwd=bomb.parent, preexec_fn=limit)
+    out = run_process(ROOT / "metrics.py", "--root", bomb.parent.parent, "--prefix-a", "good",
+                      "--prefix-b", "bomb", "--bootstrap", "200", cwd=bomb.parent,
+                      preexec_fn=limit)
     one_line(out, str(bomb), "ee_pos would expand to")
 
 

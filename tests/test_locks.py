@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import run_in_process
 
 from panda_lead.errors import UserError
 
@@ -23,9 +24,9 @@ TINY = ["--n-envs", "2", "--n-steps", "64", "--batch-size", "64", "--n-epochs", 
         "--n-workers", "1", "--no-progress"]
 
 
-def run(*args, cwd, timeout=600):
-    return subprocess.run([sys.executable, *map(str, args)], cwd=cwd, capture_output=True,
-                          text=True, timeout=timeout, env=ENV)
+def run(script, *args, cwd, timeout=None):
+    """train.py in-process (conftest.run_in_process); the run it meets is a real process."""
+    return run_in_process(script, *args, cwd=cwd)
 
 
 class Lines:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_in_process
 
 from panda_lead import metrics, rollout, trajectory
 from panda_lead.cli import metrics as metrics_cli
@@ -171,9 +172,9 @@ def write_prefix(root, prefix, offset_m, seeds, T=100):
 
 
 def run_cli(*args):
-    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
-    return subprocess.run([sys.executable, "metrics.py", *args, "--bootstrap", "200"],
-                          cwd=REPO, capture_output=True, text=True, timeout=60, env=env)
+    """metrics.py in-process (conftest.run_in_process), as `python metrics.py ...` from the
+    root; `--help` below runs as a process."""
+    return run_in_process("metrics.py", *args, "--bootstrap", "200", cwd=REPO)
 
 
 @pytest.fixture

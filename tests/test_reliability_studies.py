@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import ROOT, one_line, run_script
+from conftest import ROOT, one_line, run_in_process, run_script
 
 from panda_lead.atomicio import file_lock
 from panda_lead.errors import UserError, printable
@@ -323,7 +323,11 @@ def test_31_ilc_tune_checks_the_whole_grid_before_the_first_replay(monkeypatch, 
     ("studies/robustness.py", ["--levels", "0", "-1", "--models", str(MODEL)], "noise levels"),
 ])
 def test_29_32_bad_command_lines_are_one_error_line(script, args, words):
-    one_line(run_script(script, *args), words)
+    one_line(run_in_process(script, *args), words)  # as the script's command line, in-process
+
+
+def test_29_32_a_bad_command_line_is_one_line_and_exit_2_from_the_process():
+    one_line(run_script("studies/robustness.py", "--question", "nois"), "--question")
 
 
 # --- collision.py: models through the harness (15) -----------------------------------------

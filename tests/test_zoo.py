@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import run_in_process
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "hyperparams" / "ppo.yml"
@@ -67,9 +68,8 @@ def test_rl_zoo_trains_and_saves_a_model(zoo_run):
 def test_an_rl_zoo_model_is_adopted_and_evaluated_by_eval_py(zoo_run, tmp_path):
     """The third-party path end to end: RL Zoo trains, `eval.py --adopt` makes it a bound,
     carded archive entry, and eval.py plays it like any archived model."""
-    def run(*args):
-        return subprocess.run([sys.executable, str(ROOT / "eval.py"), *map(str, args)],
-                              cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    def run(*args):  # eval.py in-process (conftest.run_in_process)
+        return run_in_process("eval.py", *args, cwd=tmp_path)
 
     out = run("--adopt", zoo_run / "PandaLead-v0.zip", "--name", "zoo")
     assert out.returncode == 0, out.stderr[-3000:]
