@@ -128,6 +128,8 @@ def test_a_model_cards_snippet_runs_from_any_folder(installed, tmp_path):
     assert out.stdout.strip() == f"test seed 0: mean error {promised} cm"
 
 
+@pytest.mark.slow  # 2,048 steps of stock SB3 in the fresh venv; adopting is in the default
+# tier in-process (test_adopt, test_zoo), the installed command's --help there lists --adopt
 def test_sb3_trains_on_the_installed_env_and_the_installed_command_adopts_it(installed,
                                                                              tmp_path):
     code = """
