@@ -54,11 +54,17 @@ REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", 
                 "termination")
 
 
+def failure_label(unstable: bool) -> str:
+    """The one name of each way an episode can end early (rollout files, infos and tables use
+    it): a blown-up simulation, else the self-collision the config terminates on."""
+    return "unstable" if unstable else "self_collision"
+
+
 def failure_of(info: dict, i: int, terminated: bool) -> str | None:
     """Why episode i of a task step's ``info`` ended early (None if it did not): its label."""
     if not terminated:
         return None
-    return "unstable" if info["unstable"][i] else "self_collision"
+    return failure_label(bool(info["unstable"][i]))
 
 
 ACTIONS = {"lead": 3, "joint": N_JOINTS, "joint_target": N_JOINTS}

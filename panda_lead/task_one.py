@@ -30,7 +30,7 @@ from operator import itemgetter, mul
 
 import numpy as np
 
-from .config import REWARD_TERMS, EnvConfig
+from .config import REWARD_TERMS, EnvConfig, failure_label
 from .core import ArmBatch
 from .core_one import ArmOne, _Deferred
 from .task import LeadTask
@@ -194,6 +194,6 @@ class LeadTaskOne(LeadTask):
                 "collision_depth": depth, "reachable": self._reachable_row[k],
                 "lead": np.array(lead)}
         if terminated:
-            info["failure"] = "unstable" if unstable else "self_collision"
+            info["failure"] = failure_label(unstable)
         return obs, reward, terminated, truncated, info
 

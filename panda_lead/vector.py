@@ -13,7 +13,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from .config import EnvConfig, as_config
+from .config import EnvConfig, as_config, failure_of
 from .env import (
     VECTOR_RESET_OPTIONS,
     ArmFrames,
@@ -213,7 +213,7 @@ class PandaLeadVecEnv(EpisodeStepsSpec, NotCopyable, VectorEnv):
             failure = np.full(self.num_envs, None, dtype=object)
             message = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(failed):
-                failure[i] = "unstable" if info["unstable"][i] else "self_collision"
+                failure[i] = failure_of(info, i, True)
                 message[i] = failure_message(failure[i], core.time[i], task.traj_seeds[i])
             out.update(failure=failure, _failure=failed.copy(), message=message,
                        _message=failed.copy())
