@@ -158,7 +158,7 @@ def _write(path: Path, text: str) -> None:
 
 def _table(args: Args, sets: dict, cpu_us: dict, ref: str, seeds: list[int],
            seeds_file: Path) -> str:
-    from panda_lead.metrics import compare, diff_text
+    from panda_lead.metrics import compare, row_diff
 
     command = ("uv run studies/collision.py --models " + " ".join(map(str, args.models))
                + (f" --clearance {args.clearance}" if args.clearance != 0.02 else "")
@@ -180,9 +180,9 @@ def _table(args: Args, sets: dict, cpu_us: dict, ref: str, seeds: list[int],
             lines.append(f"| {name} (ref) | {col.mean_b:.2f} | - | - | {touching:.0f} "
                          f"| {err.mean_b:.2f} | - | {cpu_us[name]:.0f} |")
             continue
-        lines.append(f"| {name} | {col.mean_b:.2f} | {diff_text(col.delta, col.ci)} "
+        lines.append(f"| {name} | {col.mean_b:.2f} | {row_diff(col)} "
                      f"| {col.improved}/{col.n_pairs} | {touching:.0f} | {err.mean_b:.2f} "
-                     f"| {diff_text(err.delta, err.ci)} | {cpu_us[name]:.0f} |")
+                     f"| {row_diff(err)} | {cpu_us[name]:.0f} |")
     lines += ["", "What the collision-aware IK does to each controller: with it minus without it, "
               "paired by seed.", "",
               "| controller | self-collision time: mean diff (points) | mean error: mean diff "
@@ -191,8 +191,8 @@ def _table(args: Args, sets: dict, cpu_us: dict, ref: str, seeds: list[int],
         plain = name.removesuffix(" + clearance")
         cmp = compare(sets[plain], sets[name], label_a=plain, label_b=name)
         col, err = cmp.row("self_collision"), cmp.row("mean_err")
-        median = diff_text(err.median_delta, err.median_ci, verdict=False)
-        lines.append(f"| {plain} | {diff_text(col.delta, col.ci)} | {diff_text(err.delta, err.ci)} "
+        median = row_diff(err, median=True, verdict=False)
+        lines.append(f"| {plain} | {row_diff(col)} | {row_diff(err)} "
                      f"| {median} | {cpu_us[name] / cpu_us[plain]:.2f}x |")
     lines += ["", f"CPU per step: one thread, {len(seeds)} arms in one batch, the whole loop "
               "(controller, IK, physics, recording); a shared machine, so read the ratios."]

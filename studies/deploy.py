@@ -178,7 +178,7 @@ def _play(ctrl, seeds: list[int]) -> dict:
 def _row(cond: str, name: str, analytic: dict, rollouts: dict, checks_a: dict, checks: dict,
          n_boot: int) -> dict:
     """One controller under one condition, paired by seed with the analytic lead."""
-    from panda_lead.metrics import bootstrap_ci, compare
+    from panda_lead.metrics import bootstrap_ci, compare, sign_test_p
 
     cmp = compare(analytic, rollouts, n_boot=n_boot, label_a="Analytic", label_b=name)
     ok = np.array([float(checks[s].accepted) for s in cmp.seeds])
@@ -193,13 +193,16 @@ def _row(cond: str, name: str, analytic: dict, rollouts: dict, checks_a: dict, c
             "share": float(ok.mean()), "share_ci": bootstrap_ci(ok, n_boot=n_boot),
             "share_delta": float((ok - ok_a).mean()),
             "share_delta_ci": bootstrap_ci(ok - ok_a, n_boot=n_boot),
+            # accepted or not, paired by seed: the sign test of the differences is McNemar's
+            # exact test (one test per cell, as the error's and jerk's)
+            "share_p": sign_test_p(ok - ok_a),
             "margin": float(np.median([checks[s].worst_margin for s in cmp.seeds])),
             "limit": max(hit, key=hit.get), "n": len(cmp.seeds),
             "charged": len(cmp.pairing.charged[name])}
 
 
 def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
-    from panda_lead.metrics import diff_text
+    from panda_lead.metrics import diff_text, row_diff
 
     models = f" --models {' '.join(map(str, args.models))}" if args.models else ""
     extra = "" if args.conditions == list(CONDITIONS) else \
@@ -225,13 +228,13 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
         dash = "-"
         lines.append(
             f"| {LABELS[r['cond']]} | {r['name']} | {err.mean_b:.2f} | {err.median_b:.2f} | "
-            f"{r['settled'].mean_b:.2f} | {dash if base else diff_text(err.delta, err.ci)} | "
-            f"{dash if base else diff_text(err.median_delta, err.median_ci)} | "
+            f"{r['settled'].mean_b:.2f} | {dash if base else row_diff(err)} | "
+            f"{dash if base else row_diff(err, median=True)} | "
             f"{jerk.mean_b:,.0f} | "
-            f"{dash if base else diff_text(jerk.delta, jerk.ci, '.0f')} | "
+            f"{dash if base else row_diff(jerk, fmt='.0f')} | "
             f"{100 * r['share']:.1f}% [{100 * r['share_ci'][0]:.1f}, "
             f"{100 * r['share_ci'][1]:.1f}] | "
-            f"{dash if base else diff_text(100 * r['share_delta'], tuple(100 * np.asarray(r['share_delta_ci'])), '.1f')} | "  # noqa: E501
+            f"{dash if base else diff_text(100 * r['share_delta'], tuple(100 * np.asarray(r['share_delta_ci'])), '.1f', n_pairs=r['n'], p_holm=r['share_p'])} | "  # noqa: E501
             f"{r['margin']:.2f} | {r['limit']} |")
     return "\n".join(lines) + "\n"
 

@@ -84,8 +84,14 @@ def fit_mlp(x, y, vx, vy, args: Args):
 
 def main(args: Args) -> None:
     sys.path.insert(0, str(ROOT / "studies"))
-    from distill import STUDENT_FEATURES, column_picker, init_from_model, record_pairs, split
-    from distill import student_config
+    from distill import (
+        STUDENT_FEATURES,
+        column_picker,
+        init_from_model,
+        record_pairs,
+        split,
+        student_config,
+    )
 
     from panda_lead.config import OBS_15
     from panda_lead.core import control_dt

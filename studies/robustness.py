@@ -151,10 +151,10 @@ def _default_out(question: str) -> Path:
     return Path("results/studies") / question
 
 
-def _fmt(x: float, ci: tuple[float, float]) -> str:
-    from panda_lead.metrics import diff_text
+def _fmt(row, median: bool = False) -> str:
+    from panda_lead.metrics import row_diff
 
-    return diff_text(x, ci)
+    return row_diff(row, median, fmt=".2f")
 
 
 def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:
@@ -176,10 +176,10 @@ def _table(args: Args, rows, unit: str, seeds: list[int]) -> str:
             lines.append(f"| {level:g} | {name} | {err.mean_b:.2f} | - | - | - | "
                          f"{jerk.mean_b:.1f} | - | {failed} |")
             continue
-        lines.append(f"| {level:g} | {name} | {err.mean_b:.2f} | {_fmt(err.delta, err.ci)} | "
-                     f"{_fmt(err.median_delta, err.median_ci)} | "
+        lines.append(f"| {level:g} | {name} | {err.mean_b:.2f} | {_fmt(err)} | "
+                     f"{_fmt(err, median=True)} | "
                      f"{100 * err.improved / err.n_pairs:.0f}% | {jerk.mean_b:.1f} | "
-                     f"{_fmt(jerk.delta, jerk.ci)} | {failed} |")
+                     f"{_fmt(jerk)} | {failed} |")
     return "\n".join(lines) + "\n"
 
 

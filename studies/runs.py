@@ -303,7 +303,7 @@ def rates(args: Args) -> None:
     (every control step, as the learned lead) and at 500 Hz (every physics substep, as the
     reference work's IK+PD), each paired with the other rate and with the study's chosen
     learned lead (100 Hz), per test trajectory."""
-    from panda_lead.metrics import bootstrap_ci, diff_text
+    from panda_lead.metrics import deltas_diffs
 
     base = {k: load_baseline(k) for k in ("classical", "classical_500hz", "analytic",
                                           "analytic_500hz")}
@@ -324,12 +324,12 @@ def rates(args: Args) -> None:
         settled = np.mean(base[name]["settled_err"])
         if name.endswith("_500hz"):
             d = m - np.array(base[name.removesuffix("_500hz")]["mean_err"])
-            vs100 = diff_text(d.mean(), bootstrap_ci(d, n_boot=args.bootstrap))
+            vs100, = deltas_diffs([(d, "mean")], args.bootstrap)
         else:
             vs100 = ""
         dl = mine - m
         print(f"| {name} | {m.mean():.2f} | {settled:.2f} | {vs100} | "
-              f"{diff_text(dl.mean(), bootstrap_ci(dl, n_boot=args.bootstrap))} | "
+              f"{deltas_diffs([(dl, 'mean')], args.bootstrap)[0]} | "
               f"{100 * np.mean(dl < 0):.0f}% |")
 
 
@@ -343,7 +343,7 @@ def choose_run(runs: list[dict]) -> dict:
 
 
 def report(args: Args) -> None:
-    from panda_lead.metrics import bootstrap_ci, diff_text
+    from panda_lead.metrics import deltas_diffs
 
     runs = load_study(args.study, ("best", "test", "model"))
     base = load_baseline(args.against)
@@ -364,11 +364,9 @@ def report(args: Args) -> None:
         means.append(mine.mean())
         settled.append(np.mean(s["test"]["settled_err"]))
         mark = " (chosen)" if s is chosen else ""
+        diffs = deltas_diffs([(d, "mean"), (d, "median"), (ds, "mean")], args.bootstrap)
         print(f"| {s['seed']}{mark} | {s['timesteps']:,} | {s['best']['mean_error_cm']:.2f} | "
-              f"{mine.mean():.2f} | {settled[-1]:.2f} | "
-              f"{diff_text(d.mean(), bootstrap_ci(d, n_boot=args.bootstrap))} | "
-              f"{diff_text(np.median(d), bootstrap_ci(d, np.median, args.bootstrap))} | "
-              f"{diff_text(ds.mean(), bootstrap_ci(ds, n_boot=args.bootstrap))} | "
+              f"{mine.mean():.2f} | {settled[-1]:.2f} | {' | '.join(diffs)} | "
               f"{100 * np.mean(d < 0):.0f}% |")
     if len(runs) > 1:
         print(f"\nAcross the {len(runs)} seeds: test mean error {np.mean(means):.2f} ± "

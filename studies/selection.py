@@ -28,7 +28,7 @@ import json
 import re
 import subprocess
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -98,7 +98,7 @@ def size(args: Args) -> None:
           f"Xeon). Pilot: the first {len(seeds)} trajectories of the selection set "
           f"(seeds {seeds[0]}-{seeds[-1]}), {args.duration:g} s episodes, default evaluation "
           "env.\n")
-    print(f"| model | mean error (cm) | tip jerk RMS (m/s^3) |\n|---|---|---|")
+    print("| model | mean error (cm) | tip jerk RMS (m/s^3) |\n|---|---|---|")
     for p, e, j in ((args.model_a, ea, ja), (args.model_b, eb, jb)):
         print(f"| {p.stem} | {e.mean():.3f} | {j.mean():.0f} |")
     print(f"\nPaired per-trajectory difference (B - A): mean {d.mean():+.3f} cm, standard "
@@ -135,9 +135,8 @@ def _study_of(stem: str) -> tuple[str, int] | None:
 
 def rank(args: Args) -> None:
     sys.path.insert(0, str(ROOT / "studies"))
-    from runs import tie_ranked
-
     from panda_lead.seeds import SELECT_SEEDS
+    from runs import tie_ranked
 
     scores = {}
     for f in sorted(SCORES.glob("*.json")):

@@ -561,9 +561,28 @@ def test_a_bug_keeps_its_traceback(root, monkeypatch):
 
 
 def test_diff_text_is_the_claims_format():
-    assert metrics.diff_text(1.234, (0.5, 2.0)) == "+1.23 [+0.50, +2.00] shown"
-    assert metrics.diff_text(-0.05, (-0.22, 0.11)) == "-0.05 [-0.22, +0.11] not shown"
+    assert metrics.diff_text(1.234, (0.5, 2.0), n_pairs=30, p_holm=0.001) == \
+        "+1.23 [+0.50, +2.00] shown"
+    assert metrics.diff_text(-0.05, (-0.22, 0.11), n_pairs=30, p_holm=0.4) == \
+        "-0.05 [-0.22, +0.11] not shown"
     assert metrics.diff_text(0.12, (0.08, 0.17), verdict=False) == "+0.12 [+0.08, +0.17]"
+    with pytest.raises(TypeError):  # no verdict without the rule's inputs
+        metrics.diff_text(1.0, (0.5, 2.0))
+
+
+def test_the_study_tables_judge_by_the_one_rule():
+    """The studies' cells (row_diff, deltas_diffs) say 'shown' only as finding_verdict does:
+    a CI that excludes 0 over too few pairs, or with a large Holm p, is not a finding."""
+    d = np.r_[np.full(25, -1.0), np.full(5, 10.0)]
+    mean, median = metrics.deltas_diffs([(d, "mean"), (d, "median")], n_boot=2000)
+    assert median.endswith(" shown") and "[-1.00, -1.00]" in median
+    assert "not shown" in mean
+    few, = metrics.deltas_diffs([(np.full(4, -2.0), "mean")], n_boot=300)
+    assert "[-2.00, -2.00] not shown (only 4 pairs" in few
+    a, b = offsets_sets([0.05] * 30, [0.04] * 25 + [0.15] * 5)
+    row = metrics.compare(a, b, n_boot=2000).row("mean_err")
+    assert metrics.row_diff(row, median=True) == "-1.00 [-1.00, -1.00] shown"
+    assert metrics.row_diff(row).endswith("not shown")
 
 
 def test_sets_that_would_share_a_name_are_named_by_their_prefixes():

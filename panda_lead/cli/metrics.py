@@ -6,9 +6,9 @@
 The table reports, per set, mean ± std and median; for the paired differences B - A the mean
 and the median, each with a 95% percentile-bootstrap CI, the share of seeds where B is better,
 and a Wilcoxon signed-rank p-value. A difference is "shown" only when its 95% CI excludes 0,
-at least 10 pairs back it and its Holm-adjusted p is below 0.05 (metrics.finding_verdict). The headline figure (--headline, two or more sets) draws mean
-and median error against the target's peak speed. Every definition, exactly as computed:
-docs/metrics.md.
+at least 10 pairs back it and its Holm-adjusted p is below 0.05 (metrics.finding_verdict).
+The headline figure (--headline, two or more sets) draws mean and median error against the
+target's peak speed. Every definition, exactly as computed: docs/metrics.md.
 """
 
 from __future__ import annotations
@@ -40,8 +40,16 @@ from ..metrics.pairing import (
     set_labels,
     unpaired_warning,
 )
-from ..metrics.stats import BY_KEY, FINDING_P, MIN_PAIRS_FOR_CLAIM, Row, claim, fmt_ci, fmt_num
-from ..metrics.stats import is_finding
+from ..metrics.stats import (
+    BY_KEY,
+    FINDING_P,
+    MIN_PAIRS_FOR_CLAIM,
+    Row,
+    claim,
+    fmt_ci,
+    fmt_num,
+    is_finding,
+)
 
 # Beyond these a number is a typo (the run would take hours): 10,000 resamples (the default)
 # already fix a 95% CI's bounds to about 1% of its width.
@@ -123,10 +131,9 @@ def speed_table(cmp: Comparison) -> Table:
 def oracle_lines(args: Args, cmp: Comparison) -> list[str]:
     """The share of the achievable gain over A that B captures, (A - B) / (A - oracle), on the
     seeds all three sets share (the oracle's failures charged like anyone's)."""
+    from ..ilc import check_oracle_start
     from ..metrics.pairing import charged
     from ..metrics.stats import rollout_metrics, share_captured
-
-    from ..ilc import check_oracle_start
 
     oracle = load_set(args.oracle, args.root)
     check_oracle_start(next(iter(oracle.values())).meta,

@@ -24,6 +24,7 @@ from .stats import (  # noqa: F401
     bootstrap_p,
     bootstrap_verdicts,
     claim,
+    deltas_diffs,
     diff_text,
     finding_verdict,
     is_finding,
@@ -31,7 +32,9 @@ from .stats import (  # noqa: F401
     paired_ci,
     peak_speed,
     rollout_metrics,
+    row_diff,
     shown,
+    sign_test_p,
     summarize,
     wilcoxon_p,
 )

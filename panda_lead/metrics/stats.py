@@ -360,9 +360,40 @@ def fmt_ci(ci: tuple[float, float], fmt: str) -> str:
     return "[n/a]" if lo == "n/a" else f"[{lo}, {hi}]"
 
 
-def diff_text(value: float, ci: tuple[float, float], fmt: str = ".2f", verdict: bool = True
-              ) -> str:
-    """'+1.23 [+0.45, +2.01] shown': a paired difference, its 95% CI and whether it is shown
-    (the studies' tables use it)."""
+def diff_text(value: float, ci: tuple[float, float], fmt: str = ".2f", verdict: bool = True,
+              *, n_pairs: int | None = None, p_holm: float = NAN) -> str:
+    """'+1.23 [+0.45, +2.01] shown': a paired difference, its 95% CI and, with ``verdict``,
+    the one rule's word on it (finding_verdict: the CI, the number of pairs and the test's
+    Holm-adjusted p, which a verdict cannot be given without)."""
     text = f"{fmt_num(value, fmt, True)} {fmt_ci(ci, fmt)}"
-    return text + (" shown" if shown(ci) else " not shown") if verdict else text
+    if not verdict:
+        return text
+    if n_pairs is None:
+        raise TypeError("diff_text's verdict needs n_pairs and p_holm (finding_verdict)")
+    return f"{text} {finding_verdict(ci, n_pairs, p_holm)}"
+
+
+def row_diff(row: Row, median: bool = False, fmt: str | None = None, verdict: bool = True
+             ) -> str:
+    """diff_text of a Row's mean (or median) difference, judged with its own test's p."""
+    fmt = fmt or BY_KEY[row.key].fmt
+    if median:
+        return diff_text(row.median_delta, row.median_ci, fmt, verdict, n_pairs=row.n_pairs,
+                         p_holm=row.p_median_holm)
+    return diff_text(row.delta, row.ci, fmt, verdict, n_pairs=row.n_pairs, p_holm=row.p_holm)
+
+
+def deltas_diffs(cells, n_boot: int = 10000, fmt: str = ".2f") -> list[str]:
+    """diff_text of several paired-difference arrays of one table row, ``cells`` as (deltas,
+    "mean" or "median") pairs: each its bootstrap CI and its own test (Wilcoxon for a mean, the
+    sign test for a median), the p-values Holm-adjusted over the cells."""
+    prepared = []
+    for d, stat in cells:
+        d = np.asarray(d, dtype=float)
+        d = d[np.isfinite(d)]
+        fn, test = (np.median, sign_test_p) if stat == "median" else (np.mean, wilcoxon_p)
+        value = float(fn(d)) if len(d) else NAN
+        prepared.append((value, bootstrap_ci(d, fn, n_boot), len(d), test(d)))
+    adjusted = holm([p for *_, p in prepared])
+    return [diff_text(v, ci, fmt, n_pairs=n, p_holm=p)
+            for (v, ci, n, _), p in zip(prepared, adjusted, strict=True)]
