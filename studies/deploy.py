@@ -212,7 +212,9 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
              "",
              "Differences are controller - analytic lead under the same condition, paired by "
              "seed, 95% bootstrap CIs (panda_lead.metrics.compare); a difference is *shown* "
-             "when its CI excludes 0. Latency: the lead's channel k steps late both ways, IK "
+             "by the repo's one rule (metrics.finding_verdict: CI excludes 0, >= 10 pairs, "
+             "Holm-adjusted p < 0.05; the accepted share by McNemar's exact test). Latency: "
+             "the lead's channel k steps late both ways, IK "
              "and joint state current (docs/deploy.md). Noise reaches every measured input "
              "incl. the tip error. *Accepted*: the commanded joint goals, as the 1 kHz command "
              "(cubic spline + libfranka's 100 Hz low-pass), within the Panda's joint and tip "
