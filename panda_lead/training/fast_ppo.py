@@ -186,10 +186,16 @@ class FastPPO(PPO):
         log("train/clip_range", clip_range)
 
 
+def linear_schedule(start: float):
+    """SB3 learning-rate schedule: start at progress 1 (the first step), 0 at the end."""
+    def schedule(progress_remaining: float) -> float:
+        return start * progress_remaining
+    return schedule
+
+
 def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None = None) -> PPO:
     """The PPO model a training run uses, from its TrainConfig: FastPPO when
     ``config.fast_update`` (or ``fast``) says so, else SB3's PPO as it comes."""
-    from .loop import linear_schedule
 
     fast = getattr(config, "fast_update", True) if fast is None else fast
     ppo = {k: getattr(config, k) for k in ("n_steps", "batch_size", "n_epochs", "gamma",

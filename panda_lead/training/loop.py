@@ -63,13 +63,6 @@ class TrainingInterrupted(Exception):
         self.run_dir, self.steps, self.signum = run_dir, steps, int(signum)
 
 
-def linear_schedule(start: float):
-    """SB3 learning-rate schedule: start at progress 1 (the first step), 0 at the end."""
-    def schedule(progress_remaining: float) -> float:
-        return start * progress_remaining
-    return schedule
-
-
 def check_device(device: str, torch) -> None:
     """A CUDA device that is not there is a clear error (SB3 would quietly use the CPU)."""
     try:
