@@ -23,6 +23,7 @@ OBS_FEATURES = {
     "joint_pos": N_JOINTS, "joint_vel": N_JOINTS, "prev_action": 3, "tip_error": 3,
     "tip_error_avg": 3,
     "target_preview": 18,  # PREVIEW_POINTS future target offsets (EnvConfig.preview_times)
+    "preview_jerk": 18,  # the same points as what the Taylor guess misses (see OBS_SCALE)
 }
 # Each feature is divided by a fixed scale so that every input of the policy is of order one
 # (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
@@ -43,6 +44,14 @@ OBS_SCALE = {
     # with the causal results): the target's future positions p(t + h) - p(t), h in
     # EnvConfig.preview_times; 0.3 s ahead at 2.5 m/s is 0.75 m, so 0.1 m keeps them of order 1.
     "target_preview": 0.1,
+    # The same path ahead as what the present target's Taylor guess misses, per look-ahead h:
+    # 6 (p(t + h) - p - v h - a h^2 / 2) / h^3, the path's mean jerk over the next h seconds
+    # (m/s^3). The raw offsets span 1 mm to 0.6 m over 0.02-0.2 s (training trajectories'
+    # 99.9th percentile), and what the policy cannot already read from the present target's
+    # velocity and acceleration is the smallest part of them; divided by h^3 every look-ahead
+    # is of one order (0.02-0.3 s, 128 training episodes of 2 s: median 15-18 m/s^3, 95th
+    # percentile 185-290, 99.9th 310-640), hence a 250 m/s^3 scale.
+    "preview_jerk": 250.0,
 }
 PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
 # The observation layouts of the reference ladder (the presets build on them).
@@ -191,6 +200,9 @@ class EnvConfig:
         # Normalise (tuples in canonical order, plain floats) so equal settings compare equal.
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         set_("obs_features", check_features(self.obs_features))
+        if {"target_preview", "preview_jerk"} <= set(self.obs_features):
+            raise UserError("observe target_preview or preview_jerk, not both (the same path "
+                            "ahead twice)")
         if self.shapes is not None:
             shapes = (self.shapes,) if isinstance(self.shapes, str) else tuple(self.shapes)
             for s in shapes:

@@ -79,12 +79,15 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     | tip_error      | 3    | tip minus target (m)                                 | 0.05       |
     | tip_error_avg  | 3    | its running average, clipped per axis (m; see below) | 0.01       |
     | target_preview | 18   | p(t + h) - p(t), h in preview_times (m; see below)   | 0.1        |
+    | preview_jerk   | 18   | 6 (p(t + h) - p - v h - a h^2/2) / h^3 (m/s^3)       | 250        |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
     gives the index ranges. ``tip_error_avg`` moves each step ``dt/error_avg_time`` of the way
     towards the tip error clipped per axis at ``error_avg_clip``; it is 0 at reset.
     ``target_preview`` KNOWS THE PLANNED PATH (a labelled variant, never mixed with the causal
     results): the target's future positions relative to now, from the analytic trajectory.
+    ``preview_jerk`` knows the same path, as what the present target's Taylor guess misses per
+    look-ahead (the path's mean jerk over the next h seconds); one of the two at a time.
     ``obs_noise`` adds Gaussian noise (std per feature, in the feature's physical unit) to what
     the policy sees; the IK target is always the true target.
 

@@ -47,7 +47,10 @@ class LeadTask:
         self.err_avg = np.zeros((n, 3))
         # target_preview: each slot's future target offsets at every step of its episode,
         # computed from its trajectory at its reset (the path ahead runs past the episode's end)
-        self._preview_observed = "target_preview" in self._features
+        # (preview_jerk: the same look-aheads as what the Taylor guess misses, per unit h^3)
+        self._preview_kind = next((f for f in ("target_preview", "preview_jerk")
+                                   if f in self._features), None)
+        self._preview_observed = self._preview_kind is not None
         self._preview = (np.zeros((n, c.episode_steps + 1, 3 * len(c.preview_times)))
                          if self._preview_observed else None)
         self._avg_rate, self._avg_clip = self.dt / c.error_avg_time, c.error_avg_clip
@@ -128,13 +131,21 @@ class LeadTask:
         return self._stack.reshape(self.n, -1).copy()
 
     def _set_preview(self, ids) -> None:
-        """target_preview's rows for slots ``ids``: p(t + h) - p(t) at every step's time t,
-        h in preview_times, from each slot's trajectory (defined for every t >= 0)."""
+        """The preview's rows for slots ``ids`` at every step's time t, h in preview_times, from
+        each slot's trajectory (defined for every t >= 0): target_preview p(t + h) - p(t),
+        preview_jerk 6 (p(t + h) - p - v h - a h^2 / 2) / h^3 (config.OBS_SCALE)."""
         times = np.arange(self.config.episode_steps + 1) * self.dt
         for i in ids:
             now = self.core.target_pos[i]
+            if self._preview_kind == "preview_jerk":
+                p, v, a = self.trajs[i].at(times)[:3]
             for j, h in enumerate(self.config.preview_times):
-                self._preview[i, :, 3 * j:3 * j + 3] = self.trajs[i].at(times + h)[0] - now
+                ahead = self.trajs[i].at(times + h)[0]
+                if self._preview_kind == "target_preview":
+                    row = ahead - now
+                else:
+                    row = 6.0 * (ahead - (p + v * h + 0.5 * a * h * h)) / h ** 3
+                self._preview[i, :, 3 * j:3 * j + 3] = row
 
     def _draw(self, i: int, shape: str | None):
         """A training trajectory from slot i's own stream (under the speed cap, if any)."""
@@ -162,7 +173,7 @@ class LeadTask:
             source["tip_error_avg"] = self.err_avg
         if self._preview_observed:
             k = np.minimum(core.step_count, self.config.episode_steps)
-            source["target_preview"] = self._preview[self._all, k]
+            source[self._preview_kind] = self._preview[self._all, k]
         for f, a, b in self.layout:
             raw[:, a:b] = source[f]
         if len(self._noisy):

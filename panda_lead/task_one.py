@@ -59,7 +59,9 @@ class LeadTaskOne(LeadTask):
         self._inv_scale_list = self._inv_scale.tolist()
         self._base_dim = self.layout[-1][2]  # one observation's size
         # the observed features' positions in step_one's tuple of every feature
-        at = [_SOURCES.index(f) for f in self._features]
+        # (either preview feature is the task's one preview row: EnvConfig allows one)
+        at = [_SOURCES.index("target_preview" if f == "preview_jerk" else f)
+              for f in self._features]
         self._pick = itemgetter(*at) if len(at) > 1 else lambda source: (source[at[0]],)
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         # the weights, signed as step_one's terms use them (one unpack, not a dict lookup each)

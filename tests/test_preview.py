@@ -15,6 +15,8 @@ from panda_lead.task_one import LeadTaskOne
 
 PREVIEW = EnvConfig(episode_steps=30, obs_features=("ee_pos", "target_pos", "tip_error",
                                                      "target_preview"))
+JERK = PREVIEW.replace(obs_features=("ee_pos", "target_pos", "tip_error", "preview_jerk"),
+                       preview_times=(0.02, 0.05, 0.08, 0.12, 0.2, 0.3))
 
 
 def _preview_of(obs: np.ndarray, config: EnvConfig) -> np.ndarray:
@@ -40,9 +42,28 @@ def test_the_preview_is_the_future_target_minus_the_present_past_the_episodes_en
     assert not np.allclose(got[:, -1], got[:, 0])
 
 
+def test_preview_jerk_is_what_the_taylor_guess_misses_per_h_cubed():
+    task = LeadTask(JERK, 1)
+    obs = task.reset(None, [9])
+    traj = trajectory.sample(9)
+    a, b = next((a, b) for f, a, b in obs_layout(JERK.obs_features) if f == "preview_jerk")
+    for step in range(5):
+        t = step * task.dt
+        p, v, acc = traj.at(t)[:3]
+        for j, h in enumerate(JERK.preview_times):
+            ahead = traj.at(t + h)[0]
+            # the definition, and what it must mean: the future position is the Taylor
+            # guess plus jerk h^3 / 6
+            jerk = obs[0, a + 3 * j:a + 3 * j + 3] * OBS_SCALE["preview_jerk"]
+            assert np.allclose(p + v * h + acc * h * h / 2 + jerk * h ** 3 / 6, ahead, atol=1e-5)
+        obs, *_ = task.step(np.zeros((1, 3)))
+    with pytest.raises(UserError, match="not both"):
+        EnvConfig(obs_features=("ee_pos", "target_preview", "preview_jerk"))
+
+
 @pytest.mark.parametrize("config", [PREVIEW, PREVIEW.replace(obs_noise={"target_preview": 0.01}),
-                                    PREVIEW.replace(obs_stack=2)],
-                         ids=["plain", "noise", "stack"])
+                                    PREVIEW.replace(obs_stack=2), JERK],
+                         ids=["plain", "noise", "stack", "jerk"])
 def test_the_single_envs_task_observes_the_reference_bit_for_bit(config):
     fast, ref = LeadTaskOne(config, 1, nthread=1), LeadTask(config, 1, nthread=1)
     assert fast._lean_lead  # the fast route (Python floats) runs with the preview observed

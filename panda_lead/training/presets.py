@@ -173,6 +173,18 @@ PRESETS.update([
             "ahead observed (36-D): knows the planned path",
             env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
             lr_schedule="linear"),
+    # The same knowledge, encoded as what the policy cannot read from the present target:
+    # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
+    # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.
+    # Here each look-ahead's Taylor residual per h^3 (config.OBS_SCALE's preview_jerk), over
+    # look-aheads from 0.02 s (a fifth of the servo lag the analytic lead's tau of 0.04 s
+    # covers) to 0.3 s.
+    _preset("v5_err_decay_preview_jerk", "v5_err_decay + the planned path's jerk ahead over "
+            "0.02-0.3 s (the target's future positions minus their Taylor guess, per h^3; "
+            "36-D): knows the planned path",
+            env=dict(obs_features=OBS_15 + ("tip_error", "preview_jerk"),
+                     preview_times=(0.02, 0.05, 0.08, 0.12, 0.2, 0.3)),
+            lr_schedule="linear"),
 ])
 
 
