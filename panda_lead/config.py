@@ -169,6 +169,11 @@ class EnvConfig:
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
+    """A first-order low-pass on the applied lead, in the loop (cutoff in Hz; 0: none), like
+    libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
+    1 - exp(-2 pi f dt) of the way to the action's each control step (from 0 at reset), so a
+    policy trained with it learns to act through it."""
     preview_times: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
     """The `target_preview` observation's look-aheads (s; 6 increasing, in (0, 1]): it holds
     the target's future positions p(t + h) - p(t), what a controller that knows the planned

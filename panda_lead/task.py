@@ -78,6 +78,9 @@ class LeadTask:
         self.action_delay = np.full(n, c.action_delay)
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
+        # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
+        self._lead_alpha = (1.0 - np.exp(-2 * np.pi * c.lead_filter_hz * self.dt)
+                            if c.lead_filter_hz > 0 else None)
 
     def set_speed_cap(self, cap: float | None) -> None:
         """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any)."""
@@ -275,7 +278,11 @@ class LeadTask:
             applied = self._act_hist[self._all, self.action_delay]
         kind = self.config.action
         if kind == "lead":
-            self.lead = applied * self.config.max_lead
+            if self._lead_alpha is None:
+                self.lead = applied * self.config.max_lead
+            else:  # a new array: info["lead"] of the last step is not written over
+                self.lead = self.lead + self._lead_alpha * (applied * self.config.max_lead
+                                                            - self.lead)
             core.step(self.lead)
         elif kind == "joint":
             core.step(joint_offset=applied * self.config.max_joint_offset)

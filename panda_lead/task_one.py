@@ -75,7 +75,8 @@ class LeadTaskOne(LeadTask):
         # The lean route: a lead with no action delay goes to the core's one-arm step as
         # Python floats (the lead is the action times max_lead, as _control computes it).
         self._lean_lead = (isinstance(self.core, ArmOne) and self.core.lean
-                           and c.action == "lead" and not self._delayed)
+                           and c.action == "lead" and not self._delayed
+                           and not c.lead_filter_hz)
         self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
         self._action_weighed = bool(c.w_action or c.w_action_change)
 

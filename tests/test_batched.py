@@ -200,6 +200,7 @@ SINGLE_CONFIGS = {
     "substep_ik": dict(ik={"substep_ik": True}),
     "clearance": dict(ik={"clearance": 0.02}),
     "iters": dict(ik={"iters": 3, "max_step": 0.02}),
+    "lead_filter": dict(lead_filter_hz=8.0, obs_features=("tip_error", "prev_action")),
 }
 
 

@@ -129,3 +129,26 @@ def test_noise_condition_reaches_the_tip_error():
     pos, _, _ = task.core.target()
     seen = obs[:, a:b] * OBS_SCALE["tip_error"]
     assert np.std(seen - (task.core.tip_pos - pos)) == pytest.approx(0.01 * np.sqrt(2), rel=0.15)
+
+
+def test_the_lead_filter_is_a_first_order_low_pass_in_the_loop():
+    """With lead_filter_hz the applied lead moves 1 - exp(-2 pi f dt) of the way to the
+    action's lead each step, from 0 at reset: a unit step reaches 1 - (1 - alpha)^k after k
+    steps, and the arm is driven by that lead, not the action's."""
+    hz, steps = 5.0, 6
+    filtered = LeadTask(EnvConfig(episode_steps=20, lead_filter_hz=hz), 1, nthread=1)
+    plain = LeadTask(EnvConfig(episode_steps=20), 1, nthread=1)
+    filtered.reset(None, [3])
+    plain.reset(None, [3])
+    alpha = 1 - np.exp(-2 * np.pi * hz * filtered.dt)
+    action = np.array([[1.0, -0.5, 0.25]])
+    for k in range(1, steps + 1):
+        info = filtered.step(action)[4]
+        want = action[0] * filtered.config.max_lead * (1 - (1 - alpha) ** k)
+        assert np.allclose(info["lead"][0], want, rtol=1e-12)
+        plain.step(np.array([want / plain.config.max_lead]))
+        # the arm under the filter moves as the arm given the filtered lead directly
+        assert np.allclose(filtered.core.qpos, plain.core.qpos, atol=1e-12)
+    filtered.reset(None, [4])
+    assert np.allclose(filtered.step(action)[4]["lead"][0],
+                       action[0] * filtered.config.max_lead * alpha)
