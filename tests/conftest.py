@@ -4,6 +4,7 @@ bad input, and one tiny trained run shared by the tests that need a run folder o
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -123,11 +124,34 @@ def tiny_run(tmp_path_factory):
     (test_cli, test_training; each trained its own): train.py as a user runs it, 200 steps
     asked (whole rollouts of 64 x 2 end it at 256), SubprocVecEnv, evaluations and
     checkpoints every 128 steps; then resumed to 512 steps and archived as archive/tiny.
-    Read-only: a test that writes into it takes `tiny_run_copy`.
+    Read-only: a test that writes into it takes `tiny_run_copy`. Trained once per test
+    session, also under pytest-xdist: the first worker to ask trains it in the workers'
+    shared temporary folder under a file lock, the others wait for it and read it (pytest-
+    xdist's documented recipe; each worker trained its own, ~80 s of setup each).
 
     Returns (work folder holding runs/ and archive/, the run folder, the first run's and the
     resume's CompletedProcess)."""
-    tmp = tmp_path_factory.mktemp("tiny_run")
+    if not os.environ.get("PYTEST_XDIST_WORKER"):  # no xdist workers: this process's own
+        return _train_tiny(tmp_path_factory.mktemp("tiny_run"))
+    from filelock import FileLock
+
+    shared = tmp_path_factory.getbasetemp().parent  # the same folder for every worker
+    record = shared / "tiny_run.json"
+    with FileLock(str(shared / "tiny_run.lock")):
+        if not record.is_file():
+            tmp, _, first, resumed = _train_tiny(shared / "tiny_run")
+            record.write_text(json.dumps({"tmp": str(tmp), "runs": [
+                [p.args if isinstance(p.args, str) else [str(a) for a in p.args],
+                 p.returncode, p.stdout, p.stderr] for p in (first, resumed)]}))
+    saved = json.loads(record.read_text())
+    tmp = Path(saved["tmp"])
+    first, resumed = (subprocess.CompletedProcess(*r) for r in saved["runs"])
+    (run_dir,) = (tmp / "runs").iterdir()
+    return tmp, run_dir, first, resumed
+
+
+def _train_tiny(tmp: Path):
+    tmp.mkdir(parents=True, exist_ok=True)
     first = run_script("train.py", "--timesteps", "200", "--vec-env", "subproc",
                        "--eval-freq", "128", "--runs-dir", tmp / "runs", *TINY_TRAIN, cwd=tmp,
                        env={"MUJOCO_GL": "egl"}, timeout=600)
