@@ -372,6 +372,13 @@ def test_seed_set_titles_and_colours():
     c = figures.colours_for(["RL+Lead", "Classical", "Mine", "Yours"])
     assert c["Classical"] == figures.colours_for(["Classical"])["Classical"]
     assert len(set(c.values())) == 4  # every label its own colour
+    # a figure of many controllers (the deploy figure has 10+) gets a colour for each: the
+    # first 15 distinct, then repeats, never StopIteration
+    from matplotlib.colors import to_hex
+
+    many = figures.colours_for([f"model {i}" for i in range(30)])
+    assert len(many) == 30
+    assert len({to_hex(many[f"model {i}"]) for i in range(15)}) == 15
 
 
 def test_paired_difference_plot_is_a_distribution_at_n_1000():

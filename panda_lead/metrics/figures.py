@@ -24,9 +24,25 @@ MIN_PER_BIN = 5
 
 def colours_for(labels) -> dict[str, str]:
     """One colour per label: the fixed COLOURS where known, else the next unused tab10 colour
-    (never C7, grey: the colour of the reference lines)."""
-    free = iter(c for c in (f"C{i}" for i in (3, 4, 5, 6, 8, 9)) if c not in COLOURS.values())
-    return {lab: COLOURS[lab] if lab in COLOURS else next(free) for lab in dict.fromkeys(labels)}
+    (never C7, grey: the colour of the reference lines), then tab20's lighter shades, then
+    around again (a figure of many labels repeats colours; it does not fail)."""
+    from itertools import cycle
+
+    spare = [f"C{i}" for i in (3, 4, 5, 6, 8, 9)]
+    spare = [c for c in spare if c not in COLOURS.values()]
+    spare += [f"tab20:{i}" for i in range(1, 20, 2) if i != 15]  # tab20's light shades, no grey
+    free = cycle(spare)
+    return {lab: COLOURS[lab] if lab in COLOURS else _colour(next(free))
+            for lab in dict.fromkeys(labels)}
+
+
+def _colour(name: str):
+    """A matplotlib colour spec: "C3" as is, "tab20:k" as tab20's k-th RGB tuple."""
+    if not name.startswith("tab20:"):
+        return name
+    from matplotlib import colormaps
+
+    return colormaps["tab20"](int(name.split(":")[1]))
 
 
 def pyplot():
