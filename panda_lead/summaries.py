@@ -47,17 +47,25 @@ def _depth(value) -> int:
     return deepest
 
 
-def read_json(path: Path, what: str, limit: int = MAX_SUMMARY_BYTES):
-    """The JSON value of the file at ``path``, read with a size bound; UserError (naming the
-    file and ``what`` it should be) for anything else: not a regular file, too large, not
-    UTF-8 JSON, NaN or infinity anywhere, nested deeper than MAX_NESTING."""
-    path = Path(path)
-    if not path.is_file():  # a folder, a device (/dev/zero), a dangling link, nothing
+def read_bounded(path: Path, what: str, limit: int) -> bytes:
+    """The bytes of the regular file at ``path``, at most ``limit`` of them; UserError (naming
+    the file and ``what`` it should be) for a folder, a device (/dev/zero), a dangling link,
+    nothing, or a file over the limit."""
+    if not path.is_file():
         raise UserError(f"{path}: no such file (or not a regular file), expected {what}")
     with open(path, "rb") as f:
         data = f.read(limit + 1)
     if len(data) > limit:
         raise UserError(f"{path}: over {limit:,} bytes, not {what}")
+    return data
+
+
+def read_json(path: Path, what: str, limit: int = MAX_SUMMARY_BYTES):
+    """The JSON value of the file at ``path``, read with a size bound; UserError (naming the
+    file and ``what`` it should be) for anything else: not a regular file, too large, not
+    UTF-8 JSON, NaN or infinity anywhere, nested deeper than MAX_NESTING."""
+    path = Path(path)
+    data = read_bounded(path, what, limit)
     try:
         value = json.loads(data.decode("utf-8"), parse_float=_finite_float,
                            parse_constant=_refuse_constant)

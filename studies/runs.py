@@ -51,7 +51,7 @@ from panda_lead.errors import (
     parse_cli,
     printable,
 )
-from panda_lead.summaries import check_test_lists, read_json, read_summary
+from panda_lead.summaries import check_test_lists, read_bounded, read_json, read_summary
 
 RUNS_DIR = Path("results/runs")
 TEST = "0-999"
@@ -584,12 +584,7 @@ MAX_CSV_BYTES = 64 << 20
 
 def _read_csv(path: Path, what: str) -> list[dict]:
     """A CSV file's rows, read with a size bound; not UTF-8 or too large is one line."""
-    if not path.is_file():
-        raise UserError(f"{path}: no such file, expected {what}")
-    with open(path, "rb") as f:
-        data = f.read(MAX_CSV_BYTES + 1)
-    if len(data) > MAX_CSV_BYTES:
-        raise UserError(f"{path}: over {MAX_CSV_BYTES:,} bytes, not {what}")
+    data = read_bounded(path, what, MAX_CSV_BYTES)
     try:
         return list(csv.DictReader(data.decode("utf-8").splitlines()))
     except (UnicodeDecodeError, csv.Error) as exc:

@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -173,3 +176,35 @@ def tiny_run_copy(tiny_run, tmp_path):
     copy = tmp_path / "work"
     shutil.copytree(tmp, copy)
     return copy, copy / "runs" / run_dir.name, first, resumed
+
+
+class PipeLines:
+    """Every line of a child's pipe, read by a thread as it comes (so the pipe never fills
+    and a silent child cannot block the test)."""
+
+    def __init__(self, pipe):
+        self.lines: list[str] = []
+        self._new = queue.Queue()
+        self._thread = threading.Thread(target=self._read, args=(pipe,), daemon=True)
+        self._thread.start()
+
+    def _read(self, pipe):
+        for line in pipe:
+            self.lines.append(line)
+            self._new.put(line)
+
+    def wait_for(self, text: str, hang_guard: float = 600) -> None:
+        """Until a line contains ``text`` (the event; the guard only catches a hang)."""
+        deadline = time.monotonic() + hang_guard
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                if text in self._new.get(timeout=left):
+                    return
+            except queue.Empty:
+                break
+        raise AssertionError(f"never saw {text!r}: {''.join(self.lines)}")
+
+    def text(self) -> str:
+        """Everything, once the child has exited."""
+        self._thread.join(timeout=60)
+        return "".join(self.lines)

@@ -5,16 +5,14 @@ never do two interleave their files. Tests wait for events, never for a time bud
 from __future__ import annotations
 
 import os
-import queue
 import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
-from conftest import run_in_process
+from conftest import PipeLines, run_in_process
 
 from panda_lead.errors import UserError
 
@@ -29,31 +27,6 @@ def run(script, *args, cwd, timeout=None):
     return run_in_process(script, *args, cwd=cwd)
 
 
-class Lines:
-    """A child's pipe read by a thread as it comes (it never fills, a silent child never
-    blocks the test)."""
-
-    def __init__(self, pipe):
-        self.lines: list[str] = []
-        self._new: queue.Queue = queue.Queue()
-        threading.Thread(target=self._read, args=(pipe,), daemon=True).start()
-
-    def _read(self, pipe):
-        for line in pipe:
-            self.lines.append(line)
-            self._new.put(line)
-
-    def wait_for(self, text: str, hang_guard: float = 600) -> None:
-        deadline = time.monotonic() + hang_guard  # catches a hang only
-        while (left := deadline - time.monotonic()) > 0:
-            try:
-                if text in self._new.get(timeout=left):
-                    return
-            except queue.Empty:
-                break
-        raise AssertionError(f"never saw {text!r}: {''.join(self.lines)}")
-
-
 def test_a_second_resume_of_a_run_still_training_is_refused(tmp_path):
     """Item 5: the run folder is locked (flock on RUN/.lock) while it trains; a second
     `--resume` of it is one line naming the holder, and the run it would have joined goes on."""
@@ -61,8 +34,8 @@ def test_a_second_resume_of_a_run_still_training_is_refused(tmp_path):
            "0", "--checkpoint-freq", "128", "--runs-dir", str(tmp_path / "runs"), *TINY]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True, env=ENV)
-    out = Lines(proc.stdout)
-    Lines(proc.stderr)
+    out = PipeLines(proc.stdout)
+    PipeLines(proc.stderr)
     try:
         out.wait_for("training started")
         (run_dir,) = (tmp_path / "runs").iterdir()

@@ -83,7 +83,7 @@ def test_the_servo_correction_is_mass_times_acceleration_plus_bias_without_gravi
 
 def test_a_joint_goal_survives_the_joint_target_action_map():
     task = LeadTask(EnvConfig(episode_steps=3, action="joint_target"), 1)
-    obs = task.reset(None, [1])
+    task.reset(None, [1])
     goal = home_qpos() + np.array([0.3, -0.2, 0.1, 0.4, -0.5, 0.2, -0.1])
     task.step(preview.joint_target_action(task.core, goal[None]))
     assert np.allclose(task.core.q_goal[0], goal, atol=1e-6)

@@ -7,18 +7,16 @@ from __future__ import annotations
 
 import json
 import os
-import queue
 import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import main_exit
+from conftest import PipeLines, main_exit
 
 from panda_lead.cli.train import main as train_main
 from panda_lead.cli.train import parse_args
@@ -227,38 +225,6 @@ def test_model_card_snippet_reproduces_the_rollout(tiny_run_copy, monkeypatch, c
 
 # --- signals and resume ------------------------------------------------------------------------
 
-class _Lines:
-    """Every line of a child's pipe, read by a thread as it comes (so the pipe never fills
-    and a silent child cannot block the test)."""
-
-    def __init__(self, pipe):
-        self.lines: list[str] = []
-        self._new = queue.Queue()
-        self._thread = threading.Thread(target=self._read, args=(pipe,), daemon=True)
-        self._thread.start()
-
-    def _read(self, pipe):
-        for line in pipe:
-            self.lines.append(line)
-            self._new.put(line)
-
-    def wait_for(self, text: str, hang_guard: float = 600) -> None:
-        """Until a line contains ``text`` (the event; the guard only catches a hang)."""
-        deadline = time.monotonic() + hang_guard
-        while (left := deadline - time.monotonic()) > 0:
-            try:
-                if text in self._new.get(timeout=left):
-                    return
-            except queue.Empty:
-                break
-        raise AssertionError(f"never saw {text!r}: {''.join(self.lines)}")
-
-    def text(self) -> str:
-        """Everything, once the child has exited."""
-        self._thread.join(timeout=60)
-        return "".join(self.lines)
-
-
 @pytest.mark.parametrize("sig,code", [
     (signal.SIGTERM, 143),
     # slow tier: the default one sends SIGINT during the final evaluation
@@ -270,7 +236,7 @@ def test_a_signal_to_the_main_process_alone_saves_and_resume_appends(tmp_path, m
            "--checkpoint-freq", "128", "--runs-dir", str(tmp_path / "runs"), *TINY]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True, env={**os.environ, "MUJOCO_GL": "egl"})
-    out_lines, err_lines = _Lines(proc.stdout), _Lines(proc.stderr)
+    out_lines, err_lines = PipeLines(proc.stdout), PipeLines(proc.stderr)
     try:
         out_lines.wait_for("training started")
         run_dir = next((tmp_path / "runs").iterdir())

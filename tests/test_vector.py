@@ -219,7 +219,8 @@ def test_render_returns_one_frame_per_env_from_the_single_envs_renderer():
         # -n 0: one test needs no pytest-xdist workers of its own (addopts asks for two;
         # starting them tripled this test's time)
         out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p",
-                              "no:cacheprovider", node], env={**os.environ, "PANDA_LEAD_RENDER_CHILD": "1"},
+                              "no:cacheprovider", node],
+                             env={**os.environ, "PANDA_LEAD_RENDER_CHILD": "1"},
                              capture_output=True, text=True, timeout=900)
         assert out.returncode == 0 and "1 passed" in out.stdout, (out.stdout[-3000:]
                                                                   + out.stderr[-2000:])
