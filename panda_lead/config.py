@@ -169,6 +169,11 @@ class EnvConfig:
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
     """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    target_delay: int = 0
+    """The target camera: the target the controller knows is k control steps old, for the IK's
+    aim point and for every target feature observed (target_*, the tip error and its average,
+    the preview), for every controller, the classical one included. Tracking is still measured
+    against the true target. (obs_delay and action_delay instead delay the lead's channel.)"""
     lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
     """A first-order low-pass on the applied lead, in the loop (cutoff in Hz; 0: none), like
     libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
@@ -205,9 +210,6 @@ class EnvConfig:
         # Normalise (tuples in canonical order, plain floats) so equal settings compare equal.
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         set_("obs_features", check_features(self.obs_features))
-        if {"target_preview", "preview_jerk"} <= set(self.obs_features):
-            raise UserError("observe target_preview or preview_jerk, not both (the same path "
-                            "ahead twice)")
         if self.shapes is not None:
             shapes = (self.shapes,) if isinstance(self.shapes, str) else tuple(self.shapes)
             for s in shapes:
@@ -237,6 +239,8 @@ class EnvConfig:
         if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
             raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
                             f"{self.obs_delay}, {self.action_delay}")
+        if not 0 <= self.target_delay <= 50:
+            raise UserError(f"target_delay must be 0..50 steps, got {self.target_delay}")
         if self.action not in ACTIONS:
             raise UserError(f"unknown action {self.action!r}" + did_you_mean(self.action, ACTIONS))
         if self.action != "lead" and "prev_action" in self.obs_features:

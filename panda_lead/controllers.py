@@ -153,9 +153,11 @@ def make_filtered_analytic(tau: float = DEFAULT_TAU, jerk_psd: float = DEFAULT_J
 
 
 def make_predicting_analytic(tau: float = DEFAULT_TAU):
-    """The analytic lead that predicts through a known latency: what it observes is
-    obs_delay steps old and its lead lands action_delay steps late, so it extrapolates the
-    target's velocity by the acceleration over both (v + a d) before leading by tau."""
+    """The analytic lead that predicts through a known latency. The lead's channel: what it
+    observes is obs_delay steps old and its lead lands action_delay steps late, while the IK
+    aims at the present target, so it extrapolates the target's velocity by the acceleration
+    over both (v + a d) before leading by tau. The target camera (target_delay d_t): the IK
+    too aims at the target of d_t ago, so the lead reaches over d_t + tau from there."""
     def act(obs, task) -> np.ndarray:
         max_lead = task.config.max_lead
         if max_lead == 0:
@@ -164,7 +166,8 @@ def make_predicting_analytic(tau: float = DEFAULT_TAU):
         vel = np.asarray(obs[:, slices["target_vel"]] * OBS_SCALE["target_vel"], float)
         acc = np.asarray(obs[:, slices["target_acc"]] * OBS_SCALE["target_acc"], float)
         delay = (np.asarray(task.obs_delay) + np.asarray(task.action_delay)) * task.dt
-        lead = analytic_lead(vel + acc * delay[:, None], acc, tau, max_lead)
+        lead = analytic_lead(vel + acc * delay[:, None], acc,
+                             tau + task.config.target_delay * task.dt, max_lead)
         return (lead / max_lead).astype(np.float32)
 
     return act

@@ -87,7 +87,7 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     ``target_preview`` KNOWS THE PLANNED PATH (a labelled variant, never mixed with the causal
     results): the target's future positions relative to now, from the analytic trajectory.
     ``preview_jerk`` knows the same path, as what the present target's Taylor guess misses per
-    look-ahead (the path's mean jerk over the next h seconds); one of the two at a time.
+    look-ahead (the path's mean jerk over the next h seconds).
     ``obs_noise`` adds Gaussian noise (std per feature, in the feature's physical unit) to what
     the policy sees; the IK target is always the true target.
 

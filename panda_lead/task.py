@@ -45,14 +45,11 @@ class LeadTask:
         # updated only when it is observed
         self._avg_observed = "tip_error_avg" in self._features
         self.err_avg = np.zeros((n, 3))
-        # target_preview: each slot's future target offsets at every step of its episode,
+        # target_preview, preview_jerk: each slot's path ahead at every step of its episode,
         # computed from its trajectory at its reset (the path ahead runs past the episode's end)
-        # (preview_jerk: the same look-aheads as what the Taylor guess misses, per unit h^3)
-        self._preview_kind = next((f for f in ("target_preview", "preview_jerk")
-                                   if f in self._features), None)
-        self._preview_observed = self._preview_kind is not None
-        self._preview = (np.zeros((n, c.episode_steps + 1, 3 * len(c.preview_times)))
-                         if self._preview_observed else None)
+        self._preview = {f: np.zeros((n, c.episode_steps + 1, 3 * len(c.preview_times)))
+                         for f in ("target_preview", "preview_jerk") if f in self._features}
+        self._preview_observed = bool(self._preview)
         self._avg_rate, self._avg_clip = self.dt / c.error_avg_time, c.error_avg_clip
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
         self._alive = np.full(n, self._w["alive"])
@@ -138,17 +135,16 @@ class LeadTask:
         each slot's trajectory (defined for every t >= 0): target_preview p(t + h) - p(t),
         preview_jerk 6 (p(t + h) - p - v h - a h^2 / 2) / h^3 (config.OBS_SCALE)."""
         times = np.arange(self.config.episode_steps + 1) * self.dt
+        offsets, jerks = self._preview.get("target_preview"), self._preview.get("preview_jerk")
         for i in ids:
-            now = self.core.target_pos[i]
-            if self._preview_kind == "preview_jerk":
-                p, v, a = self.trajs[i].at(times)[:3]
+            p, v, a = self.trajs[i].at(times)[:3]
             for j, h in enumerate(self.config.preview_times):
                 ahead = self.trajs[i].at(times + h)[0]
-                if self._preview_kind == "target_preview":
-                    row = ahead - now
-                else:
-                    row = 6.0 * (ahead - (p + v * h + 0.5 * a * h * h)) / h ** 3
-                self._preview[i, :, 3 * j:3 * j + 3] = row
+                if offsets is not None:
+                    offsets[i, :, 3 * j:3 * j + 3] = ahead - self.core.target_pos[i]
+                if jerks is not None:
+                    jerks[i, :, 3 * j:3 * j + 3] = 6.0 * (ahead - (p + v * h + 0.5 * a * h * h)
+                                                          ) / h ** 3
 
     def _draw(self, i: int, shape: str | None):
         """A training trajectory from slot i's own stream (under the speed cap, if any)."""
@@ -166,7 +162,10 @@ class LeadTask:
         only (default all): a slot's generator advances only when its observation is used.
         ``target``: the core's current (pos, vel, acc), when the caller already has it."""
         core, raw = self.core, self._raw
-        pos, vel, acc = core.target() if target is None else target
+        if self.config.target_delay:
+            pos, vel, acc = self.known_target()
+        else:
+            pos, vel, acc = core.target() if target is None else target
         source = {"ee_pos": core.tip_pos, "ee_vel": self.ee_vel, "target_pos": pos,
                   "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
                   "joint_vel": core.qvel, "prev_action": self.prev_action}
@@ -175,8 +174,10 @@ class LeadTask:
         if self._avg_observed:
             source["tip_error_avg"] = self.err_avg
         if self._preview_observed:
-            k = np.minimum(core.step_count, self.config.episode_steps)
-            source[self._preview_kind] = self._preview[self._all, k]
+            k = np.minimum(np.maximum(core.step_count - self.config.target_delay, 0),
+                           self.config.episode_steps)
+            for f, rows in self._preview.items():
+                source[f] = rows[self._all, k]
         for f, a, b in self.layout:
             raw[:, a:b] = source[f]
         if len(self._noisy):
@@ -204,7 +205,8 @@ class LeadTask:
         dist = _distance(err)
         if self._avg_observed:  # avg += rate * (clip(err) - avg), step_one's order
             clip = self._avg_clip
-            self.err_avg += self._avg_rate * (np.minimum(np.maximum(err, -clip), clip)
+            seen = err if not self.config.target_delay else ee - self.known_target()[0]
+            self.err_avg += self._avg_rate * (np.minimum(np.maximum(seen, -clip), clip)
                                               - self.err_avg)
         unstable = core.unstable
         any_unstable = np.logical_or.reduce(unstable)
@@ -277,19 +279,32 @@ class LeadTask:
             self._act_hist[:, 0] = action
             applied = self._act_hist[self._all, self.action_delay]
         kind = self.config.action
+        # The target camera: the IK aims at the known (old) target, moved there by a shift
+        # added to what the core aims at (the core's target is the true one)
+        shift = (self.known_target()[0] - core.target()[0] if self.config.target_delay
+                 else None)
         if kind == "lead":
             if self._lead_alpha is None:
                 self.lead = applied * self.config.max_lead
             else:  # a new array: info["lead"] of the last step is not written over
                 self.lead = self.lead + self._lead_alpha * (applied * self.config.max_lead
                                                             - self.lead)
-            core.step(self.lead)
+            core.step(self.lead if shift is None else self.lead + shift)
         elif kind == "joint":
-            core.step(joint_offset=applied * self.config.max_joint_offset)
+            core.step(lead=shift, joint_offset=applied * self.config.max_joint_offset)
         else:  # joint_target, no IK: -1 the lower limit, 0 the home pose, +1 the upper limit
             lo, hi = core.joint_limits
             home = core.home
             core.step(joint_goal=home + np.where(applied < 0, home - lo, hi - home) * applied)
+
+    def known_target(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pos, vel, acc) of the target the controller knows, (N, 3) each: the true target
+        of EnvConfig.target_delay steps ago (the episode's first while there is none older)."""
+        core = self.core
+        k = np.maximum(np.minimum(core.step_count, core.target_pos.shape[1] - 1)
+                       - self.config.target_delay, 0)
+        i = self._all
+        return core.target_pos[i, k], core.target_vel[i, k], core.target_acc[i, k]
 
     def _observed(self, obs: np.ndarray, unstable: np.ndarray | None) -> np.ndarray:
         """What the policy sees of this step's (N, base) observations: the observation delay,

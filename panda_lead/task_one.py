@@ -37,7 +37,8 @@ from .task import LeadTask
 
 # step_one's order of the observation features (its tuple of their values)
 _SOURCES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "joint_pos",
-            "joint_vel", "prev_action", "tip_error", "tip_error_avg", "target_preview")
+            "joint_vel", "prev_action", "tip_error", "tip_error_avg", "target_preview",
+            "preview_jerk")
 
 
 class LeadTaskOne(LeadTask):
@@ -59,9 +60,7 @@ class LeadTaskOne(LeadTask):
         self._inv_scale_list = self._inv_scale.tolist()
         self._base_dim = self.layout[-1][2]  # one observation's size
         # the observed features' positions in step_one's tuple of every feature
-        # (either preview feature is the task's one preview row: EnvConfig allows one)
-        at = [_SOURCES.index("target_preview" if f == "preview_jerk" else f)
-              for f in self._features]
+        at = [_SOURCES.index(f) for f in self._features]
         self._pick = itemgetter(*at) if len(at) > 1 else lambda source: (source[at[0]],)
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         # the weights, signed as step_one's terms use them (one unpack, not a dict lookup each)
@@ -76,9 +75,10 @@ class LeadTaskOne(LeadTask):
         # Python floats (the lead is the action times max_lead, as _control computes it).
         self._lean_lead = (isinstance(self.core, ArmOne) and self.core.lean
                            and c.action == "lead" and not self._delayed
-                           and not c.lead_filter_hz)
+                           and not c.lead_filter_hz and not c.target_delay)
         self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
         self._action_weighed = bool(c.w_action or c.w_action_change)
+        self._offset_rows = self._jerk_rows = None  # the preview's rows (reset sets them)
 
     def _new_core(self, n: int, nthread: int) -> ArmBatch:
         if self.config.ik.clearance > 0:
@@ -100,7 +100,9 @@ class LeadTaskOne(LeadTask):
         obs = super().reset(ids, traj_seeds, shapes)
         self._reachable_row = self._reachable[0].tolist()  # step_one's, as Python bools
         if self._preview_observed:  # the preview's rows, as Python floats (LeadTask's values)
-            self._preview_rows = self._preview[0].tolist()
+            rows = {f: r[0].tolist() for f, r in self._preview.items()}
+            self._offset_rows = rows.get("target_preview")
+            self._jerk_rows = rows.get("preview_jerk")
         return obs
 
     def step_one(self, action):
@@ -182,7 +184,8 @@ class LeadTaskOne(LeadTask):
                   core.qpos[0].tolist() if joints else None,
                   core.qvel[0].tolist() if joints else None,
                   values, (dx, dy, dz), avg if self._avg_observed else None,
-                  self._preview_rows[k] if self._preview_observed else None)
+                  self._offset_rows[k] if self._offset_rows is not None else None,
+                  self._jerk_rows[k] if self._jerk_rows is not None else None)
         raw = chain.from_iterable(self._pick(source))
         if len(self._noisy):
             raw = list(raw)

@@ -18,6 +18,9 @@ The conditions (docs/deploy.md says what each means physically):
   lead it returns), the IK aims at the present target and reads the present joint state: a
   slow lead computer or bus. Every controller sees it; the classical controller, which has no
   lead, is unaffected by construction.
+- target camera k: the target is seen k control steps late by every controller, for the IK's
+  aim point as well as for what a lead observes (EnvConfig.target_delay): the classical
+  controller lags by k steps more, and the rival predicts through the delay.
 - noise s cm: Gaussian noise on every measured input of the observation, positions s, velocities
   10 s per second, the target's acceleration 100 s per second squared, and the tip error the
   learned leads observe sqrt(2) s (the difference of two readings of s).
@@ -42,9 +45,11 @@ from robustness import condition as robustness_condition  # noqa: E402
 
 from panda_lead.errors import UserError, exit_on_user_error  # noqa: E402
 
-CONDITIONS = ("none", "delay1", "delay3", "noise1", "noise2")
+CONDITIONS = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2")
 LABELS = {"none": "no delay, no noise", "delay1": "latency 1 step (10 ms)",
-          "delay3": "latency 3 steps (30 ms)", "noise1": "noise 1 cm", "noise2": "noise 2 cm"}
+          "delay3": "latency 3 steps (30 ms)", "camera1": "target camera 1 step (10 ms)",
+          "camera3": "target camera 3 steps (30 ms)", "noise1": "noise 1 cm",
+          "noise2": "noise 2 cm"}
 SKIP_S = 0.5  # the swing from home, as the settled error leaves it out
 
 
@@ -55,7 +60,7 @@ class Args:
     seeds: str = "0-499"
     """Test seeds."""
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    """Rows, from: none delay1 delay3 noise1 noise2."""
+    """Rows, from: none delay1 delay3 camera1 camera3 noise1 noise2."""
     out: Path = Path("results/studies/deploy")
     """Folder for deploy.md and deploy.png."""
     bootstrap: int = 10000
@@ -76,6 +81,8 @@ def overrides(cond: str) -> dict:
         return {}
     if cond.startswith("delay"):
         return robustness_condition("delay", float(cond[5:]))
+    if cond.startswith("camera"):  # the target seen k steps late by every controller's IK too
+        return {"target_delay": int(cond[6:]), "random_delay": False}
     level = float(cond[5:])
     settings = robustness_condition("noise", level)
     settings["obs_noise"]["tip_error"] = np.sqrt(2.0) * level / 100.0
@@ -97,7 +104,7 @@ def controllers_for(cond: str, models: list[Path], steps: int) -> dict:
             {**analytic.meta, "controller": "analytic+filter",
              "jerk_psd": controllers.DEFAULT_JERK_PSD},
             controllers.make_filtered_analytic())
-    if cond.startswith("delay"):
+    if cond.startswith(("delay", "camera")):
         out["Analytic+predict"] = harness.Controller(
             "analytic+predict", analytic.config,
             {**analytic.meta, "controller": "analytic+predict"},
@@ -254,19 +261,13 @@ def _commit() -> str:
 def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     """Mean error against mean tip jerk: one point per controller per condition, 95% CIs of
     the error; a controller's points joined in condition order. Lower left is better."""
-    from panda_lead.metrics.figures import COLOURS, pyplot, save_figure
+    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 6.5), constrained_layout=True)
     names = list(dict.fromkeys(r["name"] for r in rows))
-    # the baselines keep the repo's colours; the rest take tab10's others (never grey, the
-    # reference lines' colour), then tab20's light shades
-    used = set(COLOURS.values()) | {"tab:gray"}
-    palette = iter([c for c in (f"tab:{k}" for k in ("green", "red", "purple", "brown", "pink",
-                                                        "olive", "cyan")) if c not in used]
-                   + list(plt.get_cmap("tab20").colors[1::2]))
-    colours = {n: COLOURS.get(n) or next(palette) for n in names}
-    markers = dict(zip(CONDITIONS, ("o", "s", "D", "^", "v"), strict=True))
+    colours = colours_for(names)  # the baselines keep the repo's colours
+    markers = dict(zip(CONDITIONS, ("o", "s", "D", "<", ">", "^", "v"), strict=True))
     for name in names:
         pts = [r for r in rows if r["name"] == name]
         x = [r["jerk"].mean_b for r in pts]

@@ -201,6 +201,7 @@ SINGLE_CONFIGS = {
     "clearance": dict(ik={"clearance": 0.02}),
     "iters": dict(ik={"iters": 3, "max_step": 0.02}),
     "lead_filter": dict(lead_filter_hz=8.0, obs_features=("tip_error", "prev_action")),
+    "target_camera": dict(target_delay=2, obs_features=OBS_FEATURES),
 }
 
 

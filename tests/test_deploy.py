@@ -152,3 +152,52 @@ def test_the_lead_filter_is_a_first_order_low_pass_in_the_loop():
     filtered.reset(None, [4])
     assert np.allclose(filtered.step(action)[4]["lead"][0],
                        action[0] * filtered.config.max_lead * alpha)
+
+
+def test_the_target_camera_delays_the_target_for_the_ik_and_the_lead_alike():
+    """target_delay k: every target feature observed is the true target of k steps ago (the
+    first while there is none older), the IK of a zero lead aims there (so the classical arm
+    lags more than without it), and tracking is still measured against the true target."""
+    k, steps = 3, 60
+    features = ("target_pos", "target_vel", "tip_error")
+    late = LeadTask(EnvConfig(episode_steps=steps, obs_features=features, target_delay=k), 1,
+                    nthread=1)
+    now = LeadTask(EnvConfig(episode_steps=steps, obs_features=features), 1, nthread=1)
+    obs_late, obs_now = late.reset(None, [11]), now.reset(None, [11])
+    true_pos = [now.core.target()[0][0].copy()]
+    dist_late, dist_now = [], []
+    for t in range(steps):
+        seen = obs_late[0, :3]  # target_pos at scale 1
+        assert np.allclose(seen, true_pos[max(t - k, 0)], atol=1e-6), t
+        tip = late.core.tip_pos[0]
+        assert np.allclose(obs_late[0, 6:9] * 0.05, tip - true_pos[max(t - k, 0)], atol=1e-6)
+        obs_late, _, _, _, info_late = late.step(np.zeros((1, 3)))
+        obs_now, _, _, _, info_now = now.step(np.zeros((1, 3)))
+        true_pos.append(now.core.target()[0][0].copy())
+        assert np.isclose(info_late["distance"][0],
+                          np.linalg.norm(late.core.tip_pos[0] - true_pos[-1]))
+        dist_late.append(info_late["distance"][0])
+        dist_now.append(info_now["distance"][0])
+    assert np.mean(dist_late[20:]) > np.mean(dist_now[20:]) + 0.005  # 30 ms more lag: > 5 mm
+
+
+def test_prediction_through_the_target_camera_reaches_over_the_delay():
+    """Under target_delay k the predicting rival leads by tau + k dt from the old target: the
+    IK's aim lands nearer where the analytic lead means to aim (the true target tau ahead of
+    now) than the plain analytic lead's, which reaches only tau past the old target."""
+    k = 3
+    config = EnvConfig(episode_steps=40, target_delay=k)
+    predict, plain = controllers.make_predicting_analytic(), controllers.make_analytic()
+    errors = {}
+    for name, act in (("predict", predict), ("plain", plain)):
+        task = LeadTask(config, 1, nthread=1)
+        obs = task.reset(None, [2])
+        miss = []
+        for _ in range(40):
+            action = act(obs, task)
+            aim = task.known_target()[0] + action * config.max_lead
+            meant = task.trajs[0].at(float(task.core.time[0]) + controllers.DEFAULT_TAU)[0]
+            miss.append(np.linalg.norm(aim - meant))
+            obs = task.step(action)[0]
+        errors[name] = np.mean(miss[5:])
+    assert errors["predict"] < 0.5 * errors["plain"], errors

@@ -57,13 +57,13 @@ def test_preview_jerk_is_what_the_taylor_guess_misses_per_h_cubed():
             jerk = obs[0, a + 3 * j:a + 3 * j + 3] * OBS_SCALE["preview_jerk"]
             assert np.allclose(p + v * h + acc * h * h / 2 + jerk * h ** 3 / 6, ahead, atol=1e-5)
         obs, *_ = task.step(np.zeros((1, 3)))
-    with pytest.raises(UserError, match="not both"):
-        EnvConfig(obs_features=("ee_pos", "target_preview", "preview_jerk"))
 
 
 @pytest.mark.parametrize("config", [PREVIEW, PREVIEW.replace(obs_noise={"target_preview": 0.01}),
-                                    PREVIEW.replace(obs_stack=2), JERK],
-                         ids=["plain", "noise", "stack", "jerk"])
+                                    PREVIEW.replace(obs_stack=2), JERK,
+                                    JERK.replace(obs_features=JERK.obs_features
+                                                 + ("target_preview",))],
+                         ids=["plain", "noise", "stack", "jerk", "both"])
 def test_the_single_envs_task_observes_the_reference_bit_for_bit(config):
     fast, ref = LeadTaskOne(config, 1, nthread=1), LeadTask(config, 1, nthread=1)
     assert fast._lean_lead  # the fast route (Python floats) runs with the preview observed
