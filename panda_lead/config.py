@@ -174,6 +174,10 @@ class EnvConfig:
     aim point and for every target feature observed (target_*, the tip error and its average,
     the preview), for every controller, the classical one included. Tracking is still measured
     against the true target. (obs_delay and action_delay instead delay the lead's channel.)"""
+    noisy_ik_target: bool = False
+    """The IK aims at the target as measured: the latest observation's (noisy) target_pos
+    reading, not the true target, so that observation noise reaches the classical controller
+    too (one tracker measures the target for everything). Needs target_pos observed."""
     lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
     """A first-order low-pass on the applied lead, in the loop (cutoff in Hz; 0: none), like
     libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
@@ -239,6 +243,9 @@ class EnvConfig:
         if not (0 <= self.obs_delay <= 50 and 0 <= self.action_delay <= 50):
             raise UserError(f"obs_delay and action_delay must be 0..50 steps, got "
                             f"{self.obs_delay}, {self.action_delay}")
+        if self.noisy_ik_target and "target_pos" not in self.obs_features:
+            raise UserError("noisy_ik_target aims the IK at the observed target_pos reading: "
+                            "observe target_pos")
         if not 0 <= self.target_delay <= 50:
             raise UserError(f"target_delay must be 0..50 steps, got {self.target_delay}")
         if self.action not in ACTIONS:

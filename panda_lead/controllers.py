@@ -115,7 +115,8 @@ def steady_state_gain(dt: float, r_std: np.ndarray, jerk_psd: float) -> np.ndarr
 def make_filtered_analytic(tau: float = DEFAULT_TAU, jerk_psd: float = DEFAULT_JERK_PSD):
     """The analytic lead from a Kalman estimate of the target's velocity and acceleration, fed
     the observed (noisy) target position, velocity and acceleration. Without noise the gain is
-    the identity to within 1e-6 and this is the analytic lead."""
+    the identity to within 1e-6 and this is the analytic lead. Where the IK aims at the noisy
+    reading too (noisy_ik_target), the lead also moves its aim to the filtered position."""
     state: dict = {}
 
     def act(obs, task) -> np.ndarray:
@@ -147,6 +148,8 @@ def make_filtered_analytic(tau: float = DEFAULT_TAU, jerk_psd: float = DEFAULT_J
         if max_lead == 0:
             return classical(obs, task)
         lead = analytic_lead(x[:, 1], x[:, 2], tau, max_lead)
+        if task.config.noisy_ik_target:  # the IK aims at the reading: move it to the estimate
+            lead = np.clip(lead + x[:, 0] - z[:, 0], -max_lead, max_lead)
         return (lead / max_lead).astype(np.float32)
 
     return act

@@ -75,6 +75,10 @@ class LeadTask:
         self.action_delay = np.full(n, c.action_delay)
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
+        # noisy_ik_target: the observed target_pos reading's columns, and the latest reading
+        self._target_cols = next((slice(a, b) for f, a, b in self.layout if f == "target_pos"),
+                                 None)
+        self._target_reading = np.zeros((n, 3))
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
         self._lead_alpha = (1.0 - np.exp(-2 * np.pi * c.lead_filter_hz * self.dt)
                             if c.lead_filter_hz > 0 else None)
@@ -184,6 +188,8 @@ class LeadTask:
             std = self._noise_std[self._noisy]
             for i in self._all if ids is None else ids:
                 raw[i, self._noisy] += self.rngs[i].normal(0.0, std)
+        if self.config.noisy_ik_target:  # the reading the IK aims at until the next one
+            self._target_reading[:] = raw[:, self._target_cols]
         return (raw * self._inv_scale).astype(np.float32)
 
     def step(self, actions: np.ndarray, discard=None):
@@ -281,8 +287,13 @@ class LeadTask:
         kind = self.config.action
         # The target camera: the IK aims at the known (old) target, moved there by a shift
         # added to what the core aims at (the core's target is the true one)
-        shift = (self.known_target()[0] - core.target()[0] if self.config.target_delay
-                 else None)
+        # (noisy_ik_target: at the observed reading of it, noise and all)
+        if self.config.noisy_ik_target:
+            shift = self._target_reading - core.target()[0]
+        elif self.config.target_delay:
+            shift = self.known_target()[0] - core.target()[0]
+        else:
+            shift = None
         if kind == "lead":
             if self._lead_alpha is None:
                 self.lead = applied * self.config.max_lead

@@ -86,6 +86,7 @@ def overrides(cond: str) -> dict:
     level = float(cond[5:])
     settings = robustness_condition("noise", level)
     settings["obs_noise"]["tip_error"] = np.sqrt(2.0) * level / 100.0
+    settings["noisy_ik_target"] = True  # the IK aims at the measured target too
     return settings
 
 

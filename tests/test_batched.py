@@ -202,6 +202,7 @@ SINGLE_CONFIGS = {
     "iters": dict(ik={"iters": 3, "max_step": 0.02}),
     "lead_filter": dict(lead_filter_hz=8.0, obs_features=("tip_error", "prev_action")),
     "target_camera": dict(target_delay=2, obs_features=OBS_FEATURES),
+    "noisy_ik_target": dict(noisy_ik_target=True, obs_noise={"target_pos": 0.01}),
 }
 
 

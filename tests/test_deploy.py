@@ -201,3 +201,41 @@ def test_prediction_through_the_target_camera_reaches_over_the_delay():
             obs = task.step(action)[0]
         errors[name] = np.mean(miss[5:])
     assert errors["predict"] < 0.5 * errors["plain"], errors
+
+
+def test_a_noisy_ik_target_reaches_the_classical_controller_and_the_filter_cleans_it():
+    """noisy_ik_target: the IK aims at the observation's target_pos reading. Without noise that
+    is the true target, bit for bit; with 1 cm of noise the classical arm's commanded goals
+    shake (their jerk rises), and the Kalman-filtered analytic lead, which moves the aim to its
+    estimate, commands smoother goals than the plain analytic lead."""
+    steps = 80
+
+    def goal_jerk(config, act, seed=6):
+        task = LeadTask(config, 1, nthread=1)
+        obs = task.reset(None, [seed])
+        task.rngs[0] = np.random.default_rng(0)
+        goals = []
+        for _ in range(steps):
+            obs = task.step(act(obs, task))[0]
+            goals.append(task.core.q_goal[0].copy())
+        return np.sqrt(np.mean(np.diff(np.array(goals)[20:], 3, axis=0) ** 2)), np.array(goals)
+
+    plain = EnvConfig(episode_steps=steps)
+    _, a = goal_jerk(plain, controllers.classical)
+    _, b = goal_jerk(plain.replace(noisy_ik_target=True), controllers.classical)
+    assert np.array_equal(a, b)
+    noise = robustness_noise(1.0)
+    quiet, _ = goal_jerk(plain.replace(obs_noise=noise), controllers.classical)
+    shaken, _ = goal_jerk(plain.replace(obs_noise=noise, noisy_ik_target=True),
+                          controllers.classical)
+    assert shaken > 3 * quiet
+    noisy = plain.replace(obs_noise=noise, noisy_ik_target=True)
+    filtered, _ = goal_jerk(noisy, controllers.make_filtered_analytic())
+    unfiltered, _ = goal_jerk(noisy, controllers.make_analytic())
+    assert filtered < 0.5 * unfiltered
+
+
+def robustness_noise(level_cm: float) -> dict:
+    s = level_cm / 100.0
+    return {"ee_pos": s, "target_pos": s, "ee_vel": 10 * s, "target_vel": 10 * s,
+            "target_acc": 100 * s}
