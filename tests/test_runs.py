@@ -137,7 +137,7 @@ def test_a_stopped_runs_curve_is_read_from_its_diagnostics_evaluation_rows(runs,
     head = ",".join(runs.DIAGNOSTICS) + "\n"  # the columns `runs diagnostics --csv` writes
     stopped.write_text(head + "8192,,,0.3,,,\n50000,50000,7.5,,,,\n90112,,,0.2,,,\n"
                        "100000,100000,6.25,,,,\n")
-    steps, error = runs._stopped_curve(stopped)
+    steps, error = runs.stopped_curve(stopped)
     assert steps.tolist() == [50_000, 100_000] and error.tolist() == [7.5, 6.25]
     # A file with no evaluation rows, or none at all, is one line before any work is done.
     updates_only = tmp_path / "updates_only.csv"
