@@ -188,8 +188,9 @@ class LeadTask:
             std = self._noise_std[self._noisy]
             for i in self._all if ids is None else ids:
                 raw[i, self._noisy] += self.rngs[i].normal(0.0, std)
-        if self.config.noisy_ik_target:  # the reading the IK aims at until the next one
-            self._target_reading[:] = raw[:, self._target_cols]
+        if self.config.noisy_ik_target:  # the reading the IK aims at until the next one,
+            rows = self._all if ids is None else ids  # of the slots observed (noise drawn)
+            self._target_reading[rows] = raw[rows, self._target_cols]
         return (raw * self._inv_scale).astype(np.float32)
 
     def step(self, actions: np.ndarray, discard=None):

@@ -239,3 +239,18 @@ def robustness_noise(level_cm: float) -> dict:
     s = level_cm / 100.0
     return {"ee_pos": s, "target_pos": s, "ee_vel": 10 * s, "target_vel": 10 * s,
             "target_acc": 100 * s}
+
+
+def test_resetting_one_slot_keeps_the_other_slots_noisy_target_readings():
+    """A vector env resets a finished slot alone (observe(ids) draws noise for it only): the
+    other slots' IK keeps aiming at their own last noisy reading, not the true target."""
+    config = EnvConfig(episode_steps=30, noisy_ik_target=True,
+                       obs_noise={"target_pos": 0.01})
+    task = LeadTask(config, 3, nthread=1)
+    task.reset(None, [1, 2, 3])
+    task.step(np.zeros((3, 3)))
+    before = task._target_reading.copy()
+    assert np.all(np.abs(before - task.core.target()[0]) > 0)  # noisy readings
+    task.reset([1], [9])
+    assert np.array_equal(task._target_reading[[0, 2]], before[[0, 2]])
+    assert not np.array_equal(task._target_reading[1], before[1])
