@@ -37,6 +37,12 @@ class Args:
     """Only the per-step ratio: time raw physics and the batched env step back to back this
     many times and print each ratio and their median (steadier than one pair on a shared
     machine, whose speed drifts between the start and the end of a full run)."""
+    update_pairs: int = 0
+    """Only issue 39's before/after: `train.py` with its defaults (FastPPO's update) and with
+    `--no-fast-update` (SB3's own), --update-steps each, back to back this many times: each
+    pair's samples/s, wall ratio and peak memory (PSS, whole process tree), then the medians."""
+    update_steps: int = 300_000
+    """Training steps per run of --update-pairs."""
     single_pairs: int = 0
     """Only the single env's ratio, the same way: raw physics and a gymnasium.make step (400
     random-action steps, median of 3 each) back to back this many times, each ratio and their
@@ -54,6 +60,25 @@ def print_pairs(count: int, label: str, pair) -> None:
               flush=True)
     print(f"median of {len(ratios)} pairs: {statistics.median(ratios):.2f}x physics "
           f"(range {min(ratios):.2f}-{max(ratios):.2f})")
+
+
+def update_pairs(count: int, steps: int) -> None:
+    """Issue 39's before/after on whole `train.py` runs (see Args.update_pairs)."""
+    ratios, mem = [], {"fast": [], "sb3": []}
+    for i in range(count):
+        (fast_mb, fast_s), (sb3_mb, sb3_s) = (bench_memory(steps),
+                                              bench_memory(steps, ("--no-fast-update",)))
+        ratios.append(sb3_s / fast_s)
+        mem["fast"].append(fast_mb)
+        mem["sb3"].append(sb3_mb)
+        print(f"pair {i + 1}: FastPPO {steps / fast_s:,.0f} samples/s ({fast_s:.1f} s, peak "
+              f"{fast_mb:,.0f} MB), SB3's update {steps / sb3_s:,.0f} samples/s ({sb3_s:.1f} s, "
+              f"peak {sb3_mb:,.0f} MB): {sb3_s / fast_s:.3f}x faster", flush=True)
+    fast_mb, sb3_mb = statistics.median(mem["fast"]), statistics.median(mem["sb3"])
+    print(f"median of {count} pairs: FastPPO {statistics.median(ratios):.3f}x SB3's update "
+          f"(range {min(ratios):.3f}-{max(ratios):.3f}); peak memory {fast_mb:,.0f} MB against "
+          f"{sb3_mb:,.0f} MB (medians). Wall times include each process's start (torch import, "
+          "env build), the same for both.")
 
 
 def median_time(fn, repeats: int) -> float:
@@ -192,11 +217,12 @@ def _tree_pss_mb(pid: int) -> float:
     return total / 1024
 
 
-def bench_memory(timesteps: int) -> tuple[float, float]:
-    """Peak memory (MB, PSS) of `train.py` with its defaults, whole process tree; and wall s."""
+def bench_memory(timesteps: int, extra: tuple[str, ...] = ()) -> tuple[float, float]:
+    """Peak memory (MB, PSS) of `train.py` with its defaults (plus ``extra`` flags), whole
+    process tree; and wall s."""
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, str(Path(__file__).resolve().parents[1] / "train.py"), "--timesteps",
-               str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0"]
+               str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0", *extra]
         t = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         peak = 0.0
@@ -235,6 +261,8 @@ def main() -> None:
     n = 200 if args.quick else 2000
     secs = 0.5 if args.quick else 2.0
     rows: list[tuple[str, str]] = []
+    if args.update_pairs:
+        return update_pairs(args.update_pairs, args.update_steps)
     if args.single_pairs:
         return print_pairs(args.single_pairs, "single env step via gymnasium.make",
                            lambda: (bench_physics(400, 3), bench_single_env(400, 3)))
