@@ -20,6 +20,8 @@ HEADLINE = "v5_err_decay_s4"
 PREVIOUS = "v5_err_decay_wide_lr3e-4"  # the previous headline (its own tables: history/)
 ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measured (seed 2)
 SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, the jerk)
+DEPLOY_STUDY = "deploy_lowpass_5m"  # issue 36's study (docs/questions.md 10)
+DEPLOY = "deploy_lowpass_5m"  # its chosen seed, archived
 COLLISION_SEEDS = "results/studies/collision/collision_seeds.txt"
 
 
@@ -181,4 +183,20 @@ def table_steps() -> list[Step]:
         _collision([f"{a}v5_5m.zip", f"{a}joint_5m.zip"],
                    "results/studies/collision/collision_joint_5m.md"),
     ]
+    # issue 37, the path ahead (a labelled variant: "knows the planned path")
+    pv = "results/studies/preview"
+    steps += [
+        Step((f"{pv}/spread.md",), ("studies/runs.py", "report", "--study", "preview_5m"),
+             _runs("preview_5m", "baselines.json"), stdout=True),
+        Step((f"{pv}/preview_5m_vs_{HS}.md",),
+             ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study", HS),
+             _runs("preview_5m", HS), stdout=True),
+    ]
+    # issue 36, a lead a real arm could run: the study, and the deployability table
+    steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
+              _compare(DEPLOY_STUDY, HS)]
+    deploy_models = [f"{a}{H}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip", f"{a}{DEPLOY}.zip"]
+    steps.append(Step(("results/studies/deploy/deploy.md", "results/studies/deploy/deploy.png"),
+                      ("studies/deploy.py", "--models", *deploy_models, "--seeds", "0-99",
+                       "--out", "{dir}"), tuple(deploy_models), section="all"))
     return steps
