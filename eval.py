@@ -1,7 +1,7 @@
 """Run a policy (or a baseline) on seeds: watch it, record a video, or write rollout files.
 
 A face of the package: `uv run eval.py --help` prints the examples and every flag (the help
-text is panda_lead.cli.main.EVAL_HELP, the command line panda_lead.cli.run); installed,
+text is panda_lead.cli.run.EVAL_HELP, the command line panda_lead.cli.run); installed,
 the same command is `panda-lead eval`.
 """
 

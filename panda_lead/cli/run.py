@@ -222,10 +222,47 @@ def _run(args: Args) -> None:
             watch(args, seed, overrides)
 
 
-if __name__ == "__main__":  # python -m panda_lead.cli.run: eval's command line (cli/main.py)
-    import sys
+# --- eval's and ikpd's command lines (panda_lead.cli.main dispatches to them) ---------------
 
-    from .main import eval_command
+EVAL_HELP = """Run a policy (or a baseline) on seeds: watch it, record a video, or write rollout files.
+
+    {cmd} --seed 7                                       # viewer (needs a display)
+    {cmd} --seed 7 --video videos/h_7.mp4                # offscreen MP4, any machine
+    {cmd} --seed 7 --video videos/cmp.mp4 --compare      # classical | policy
+    {cmd} --seeds 0-99 --prefix eval_h --model archive/v5_err_decay_s4.zip
+    {cmd} --seeds 0-99 --prefix analytic --controller analytic
+
+The env is rebuilt from the model's sidecar, so any archived model runs on any seed set
+(default: the headline model, archive/v5_err_decay_s4.zip).
+
+Model-file commands (each has its own --help):
+
+    {cmd} --adopt PATH.zip --name NAME [--env.X ...]   # a model trained elsewhere -> archive/NAME
+    {cmd} --model archive/NAME.zip --restore-sidecar   # rewrite NAME.json from the zip
+"""
+
+IKPD_HELP = """The classical baseline (IK+PD, zero lead) or the analytic lead, in one command.
+
+    {cmd} --seeds 0-99 --prefix ikpd                        # classical, rollout files
+    {cmd} --seeds 0-99 --prefix analytic --controller analytic
+    {cmd} --seed 7 --video videos/classical_7.mp4           # offscreen MP4
+
+The same command line as eval (panda_lead.cli.run); only the default controller differs.
+"""
+
+
+def eval_command(argv: list[str], prog: str = "eval.py", cmd: str = "uv run eval.py") -> None:
+    run_controller_cli(default_controller="policy", default_prefix="eval", argv=argv,
+                       prog=prog, description=EVAL_HELP.format(cmd=cmd))
+
+
+def ikpd_command(argv: list[str], prog: str = "ikpd.py", cmd: str = "uv run ikpd.py") -> None:
+    run_controller_cli(default_controller="classical", default_prefix="ikpd", argv=argv,
+                       prog=prog, description=IKPD_HELP.format(cmd=cmd))
+
+
+if __name__ == "__main__":  # python -m panda_lead.cli.run: eval's command line
+    import sys
 
     eval_command(sys.argv[1:], prog="python -m panda_lead.cli.run",
                  cmd="python -m panda_lead.cli.run")
