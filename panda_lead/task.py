@@ -141,7 +141,8 @@ class LeadTask:
         times = np.arange(self.config.episode_steps + 1) * self.dt
         offsets, jerks = self._preview.get("target_preview"), self._preview.get("preview_jerk")
         for i in ids:
-            p, v, a = self.trajs[i].at(times)[:3]
+            if jerks is not None:  # the Taylor guess's terms, once per slot
+                p, v, a = self.trajs[i].at(times)[:3]
             for j, h in enumerate(self.config.preview_times):
                 ahead = self.trajs[i].at(times + h)[0]
                 if offsets is not None:

@@ -224,7 +224,7 @@ def test_a_noisy_ik_target_reaches_the_classical_controller_and_the_filter_clean
     _, a = goal_jerk(plain, controllers.classical)
     _, b = goal_jerk(plain.replace(noisy_ik_target=True), controllers.classical)
     assert np.array_equal(a, b)
-    noise = robustness_noise(1.0)
+    noise = _deploy_module().robustness_condition("noise", 1.0)["obs_noise"]
     quiet, _ = goal_jerk(plain.replace(obs_noise=noise), controllers.classical)
     shaken, _ = goal_jerk(plain.replace(obs_noise=noise, noisy_ik_target=True),
                           controllers.classical)
@@ -234,23 +234,3 @@ def test_a_noisy_ik_target_reaches_the_classical_controller_and_the_filter_clean
     unfiltered, _ = goal_jerk(noisy, controllers.make_analytic())
     assert filtered < 0.5 * unfiltered
 
-
-def robustness_noise(level_cm: float) -> dict:
-    s = level_cm / 100.0
-    return {"ee_pos": s, "target_pos": s, "ee_vel": 10 * s, "target_vel": 10 * s,
-            "target_acc": 100 * s}
-
-
-def test_resetting_one_slot_keeps_the_other_slots_noisy_target_readings():
-    """A vector env resets a finished slot alone (observe(ids) draws noise for it only): the
-    other slots' IK keeps aiming at their own last noisy reading, not the true target."""
-    config = EnvConfig(episode_steps=30, noisy_ik_target=True,
-                       obs_noise={"target_pos": 0.01})
-    task = LeadTask(config, 3, nthread=1)
-    task.reset(None, [1, 2, 3])
-    task.step(np.zeros((3, 3)))
-    before = task._target_reading.copy()
-    assert np.all(np.abs(before - task.core.target()[0]) > 0)  # noisy readings
-    task.reset([1], [9])
-    assert np.array_equal(task._target_reading[[0, 2]], before[[0, 2]])
-    assert not np.array_equal(task._target_reading[1], before[1])
