@@ -160,7 +160,9 @@ class EnvConfig:
     terminate_on_collision: bool = False
     """End the episode (terminated) on a self-collision."""
     obs_noise: dict[str, float] = field(default_factory=dict)
-    """Gaussian noise std per observation feature, in the feature's unit (m, m/s, m/s^2, rad)."""
+    """Gaussian noise std per observation feature, in the feature's unit (m, m/s, m/s^2, rad);
+    tip_error (and tip_error_avg's input) is the tip reading minus the target reading, so it
+    carries ee_pos's and target_pos's noise (docs/env.md)."""
     ik: IKConfig = field(default_factory=IKConfig)
     """The classical IK's settings (core.IKConfig): --env.ik.damping, --env.ik.clearance, ..."""
     obs_delay: int = 0

@@ -33,17 +33,15 @@ class LeadTask:
         self.dt = self.core.dt
         base = self.layout[-1][2]  # one observation; obs_stack of them are stacked
         self.obs_dim = base * c.obs_stack
-        self._noise_std = np.zeros(base)
         self._inv_scale = np.ones(base)
         for f, a, b in self.layout:
-            self._noise_std[a:b] = c.obs_noise.get(f, 0.0)
             self._inv_scale[a:b] = 1.0 / OBS_SCALE[f]
-        self._noisy = np.flatnonzero(self._noise_std)
         self._features = [f for f, _, _ in self.layout]
         self._error_observed = "tip_error" in self._features
         # tip_error_avg: a running average of the clipped tip error (EnvConfig.error_avg_*),
         # updated only when it is observed
         self._avg_observed = "tip_error_avg" in self._features
+        self._set_up_noise(base)
         self.err_avg = np.zeros((n, 3))
         # target_preview, preview_jerk: each slot's path ahead at every step of its episode,
         # computed from its trajectory at its reset (the path ahead runs past the episode's end)
@@ -82,6 +80,44 @@ class LeadTask:
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
         self._lead_alpha = (1.0 - np.exp(-2 * np.pi * c.lead_filter_hz * self.dt)
                             if c.lead_filter_hz > 0 else None)
+
+    def _set_up_noise(self, base: int) -> None:
+        """The sensors' noise (EnvConfig.obs_noise). Each feature gets its own Gaussian draw,
+        except the tip error, which is computed from two readings, the tip's (ee_pos's noise)
+        and the target's (target_pos's): it carries the difference of their draws, plus its
+        own draw if obs_noise gives tip_error one, and tip_error_avg averages that measured
+        error. A reading's draw is its observed columns' or, when that position is not
+        observed, one of 3 hidden channels after the observation's (tip at base, target at
+        base + 3). One draw per slot and step, from the slot's generator, over the channels
+        whose std is not zero."""
+        c, cols = self.config, {f: np.arange(a, b) for f, a, b in self.layout}
+        std = np.zeros(base + 6)
+        for f, a, b in self.layout:
+            std[a:b] = c.obs_noise.get(f, 0.0)
+        uses_error = self._error_observed or self._avg_observed
+        self._reading_cols = []  # the tip's, then the target's
+        for k, f in enumerate(("ee_pos", "target_pos")):
+            hidden = np.arange(base + 3 * k, base + 3 * k + 3)
+            self._reading_cols.append(cols.get(f, hidden))
+            if uses_error and f not in cols:
+                std[hidden] = c.obs_noise.get(f, 0.0)
+        self._noisy = np.flatnonzero(std)  # the channels drawn, and their stds
+        self._noisy_std = std[self._noisy]
+        self._noisy_obs = self._noisy[self._noisy < base]  # of them, the observation's columns
+        self._noise = np.zeros((self.n, base + 6))  # each slot's latest draw
+        self._error_noisy = uses_error and bool(std[self._reading_cols[0]].any()
+                                                or std[self._reading_cols[1]].any())
+        self._error_cols = cols.get("tip_error")
+
+    def _draw_noise(self, ids) -> None:
+        """Slots ``ids``' noise for this step (all when None), into self._noise."""
+        for i in self._all if ids is None else ids:
+            self._noise[i, self._noisy] = self.rngs[i].normal(0.0, self._noisy_std)
+
+    def _reading_noise(self) -> np.ndarray:
+        """(N, 3) the measured tip error's noise: the tip reading's minus the target's."""
+        tip, target = self._reading_cols
+        return self._noise[:, tip] - self._noise[:, target]
 
     def set_speed_cap(self, cap: float | None) -> None:
         """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any)."""
@@ -162,10 +198,12 @@ class LeadTask:
             if self.speed_cap is None or traj.peak_speed <= self.speed_cap:
                 return traj
 
-    def observe(self, ids=None, target=None) -> np.ndarray:
+    def observe(self, ids=None, target=None, drawn=False) -> np.ndarray:
         """The (scaled, float32) observation of every slot; noise is drawn for slots ``ids``
         only (default all): a slot's generator advances only when its observation is used.
-        ``target``: the core's current (pos, vel, acc), when the caller already has it."""
+        ``target``: the core's current (pos, vel, acc), when the caller already has it;
+        ``drawn``: this step's noise of slots ``ids`` is drawn already (step() draws it first,
+        for tip_error_avg)."""
         core, raw = self.core, self._raw
         if self.config.target_delay:
             pos, vel, acc = self.known_target()
@@ -186,9 +224,13 @@ class LeadTask:
         for f, a, b in self.layout:
             raw[:, a:b] = source[f]
         if len(self._noisy):
-            std = self._noise_std[self._noisy]
-            for i in self._all if ids is None else ids:
-                raw[i, self._noisy] += self.rngs[i].normal(0.0, std)
+            if not drawn:
+                self._draw_noise(ids)
+            rows = self._all if ids is None else ids
+            noisy = self._noisy_obs
+            raw[np.ix_(rows, noisy)] += self._noise[np.ix_(rows, noisy)]
+            if self._error_noisy and self._error_cols is not None:
+                raw[np.ix_(rows, self._error_cols)] += self._reading_noise()[rows]
         if self.config.noisy_ik_target:  # the reading the IK aims at until the next one,
             rows = self._all if ids is None else ids  # of the slots observed (noise drawn)
             self._target_reading[rows] = raw[rows, self._target_cols]
@@ -211,9 +253,14 @@ class LeadTask:
         now = core.target()  # (pos, vel, acc) after the step: the distance and the observation
         err = ee - now[0]
         dist = _distance(err)
+        observed = None if discard is None else np.setdiff1d(self._all, discard)
+        drawn = self._avg_observed and self._error_noisy
         if self._avg_observed:  # avg += rate * (clip(err) - avg), step_one's order
             clip = self._avg_clip
             seen = err if not self.config.target_delay else ee - self.known_target()[0]
+            if self._error_noisy:  # the measured error: this step's noise drawn first
+                self._draw_noise(observed)
+                seen = seen + self._reading_noise()
             self.err_avg += self._avg_rate * (np.minimum(np.maximum(seen, -clip), clip)
                                               - self.err_avg)
         unstable = core.unstable
@@ -238,8 +285,8 @@ class LeadTask:
                 terms[k] = np.where(unstable, 0.0, terms[k])
         reward = sum(terms.values())
         self.prev_action = action
-        ids = None if discard is None else np.setdiff1d(self._all, discard)
-        obs = self._observed(self.observe(ids, target=now), unstable if any_unstable else None)
+        obs = self._observed(self.observe(observed, target=now, drawn=drawn),
+                             unstable if any_unstable else None)
         k = np.minimum(core.step_count, self.config.episode_steps)
         info = {"distance": dist, "reward_terms": terms, "self_collision": core.self_collision,
                 "collision_depth": core.collision_depth, "unstable": unstable,

@@ -80,6 +80,9 @@ class LeadTaskOne(LeadTask):
         self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
         self._action_weighed = bool(c.w_action or c.w_action_change)
         self._offset_rows = self._jerk_rows = None  # the preview's rows (reset sets them)
+        # the noise's channels as Python ints (LeadTask._set_up_noise)
+        self._noisy_list, self._noisy_obs_list = self._noisy.tolist(), self._noisy_obs.tolist()
+        self._reading_pairs = list(zip(*(c.tolist() for c in self._reading_cols), strict=True))
 
     def _new_core(self, n: int, nthread: int) -> ArmBatch:
         if self.config.ik.clearance > 0:
@@ -148,10 +151,19 @@ class LeadTaskOne(LeadTask):
         t0, t1, t2 = target
         dx, dy, dz = e0 - t0, e1 - t1, e2 - t2
         dist = math.sqrt((dx * dx + dy * dy) + dz * dz)  # _distance() on Python floats
+        noise = reading = None
+        if self._noisy_list:  # this step's draw, first (LeadTask._draw_noise): the average
+            drawn = self.rngs[0].normal(0.0, self._noisy_std)  # takes the measured error
+            self._noise[0, self._noisy] = drawn
+            noise = self._noise[0].tolist()
+            if self._error_noisy:  # the tip reading's noise minus the target reading's
+                reading = [noise[a] - noise[b] for a, b in self._reading_pairs]
         if self._avg_observed:  # step()'s update on Python floats (a NaN stays a NaN as there)
             clip, rate = self._avg_clip, self._avg_rate
+            seen = (dx, dy, dz) if reading is None else (dx + reading[0], dy + reading[1],
+                                                         dz + reading[2])
             avg = [a + rate * ((-clip if x < -clip else clip if x > clip else x) - a)
-                   for a, x in zip(self.err_avg[0].tolist(), (dx, dy, dz), strict=True)]
+                   for a, x in zip(self.err_avg[0].tolist(), seen, strict=True)]
             self.err_avg[0] = avg
         terminated = unstable or (collision and c.terminate_on_collision)
         truncated = not terminated and step >= c.episode_steps
@@ -188,11 +200,13 @@ class LeadTaskOne(LeadTask):
                   self._offset_rows[k] if self._offset_rows is not None else None,
                   self._jerk_rows[k] if self._jerk_rows is not None else None)
         raw = chain.from_iterable(self._pick(source))
-        if len(self._noisy):
+        if noise is not None:  # observe()'s order: each column's own draw, then the readings'
             raw = list(raw)
-            noise = self.rngs[0].normal(0.0, self._noise_std[self._noisy]).tolist()
-            for j, v in zip(self._noisy.tolist(), noise, strict=True):
-                raw[j] += v
+            for j in self._noisy_obs_list:
+                raw[j] += noise[j]
+            if reading is not None and self._error_cols is not None:
+                for j, v in zip(self._error_cols.tolist(), reading, strict=True):
+                    raw[j] += v
         # raw * inv_scale to float32 (fromiter: no list in between, and cheaper than np.array)
         obs = np.fromiter(map(mul, raw, self._inv_scale_list), np.float32, self._base_dim)
         if not self._plain_obs or unstable:

@@ -22,8 +22,9 @@ The conditions (docs/deploy.md says what each means physically):
   aim point as well as for what a lead observes (EnvConfig.target_delay): the classical
   controller lags by k steps more, and the rival predicts through the delay.
 - noise s cm: Gaussian noise on every measured input of the observation, positions s, velocities
-  10 s per second, the target's acceleration 100 s per second squared, and the tip error the
-  learned leads observe sqrt(2) s (the difference of two readings of s).
+  10 s per second, the target's acceleration 100 s per second squared; the tip error a learned
+  lead observes is the tip reading minus the target reading, noise and all (sqrt(2) s, the
+  same draws as its ee_pos and target_pos), and the IK aims at the target reading.
 The rivals a good engineer would field: under noise the analytic lead with a Kalman filter on
 the target's position, velocity and acceleration (controllers.make_filtered_analytic, tuned on
 the tuning seeds: --tune-filter); under latency the analytic lead that predicts through the
@@ -84,8 +85,7 @@ def overrides(cond: str) -> dict:
     if cond.startswith("camera"):  # the target seen k steps late by every controller's IK too
         return {"target_delay": int(cond[6:]), "random_delay": False}
     level = float(cond[5:])
-    settings = robustness_condition("noise", level)
-    settings["obs_noise"]["tip_error"] = np.sqrt(2.0) * level / 100.0
+    settings = robustness_condition("noise", level)  # (the tip error: the two readings')
     settings["noisy_ik_target"] = True  # the IK aims at the measured target too
     return settings
 

@@ -191,6 +191,10 @@ SINGLE_CONFIGS = {
                     w_alive=0.05, reward_after_s=0.05, obs_features=OBS_FEATURES,
                     obs_noise={"ee_pos": 0.01, "target_vel": 0.05, "tip_error_avg": 0.001}),
     "stack": dict(obs_stack=3, obs_features=("tip_error", "tip_error_avg", "joint_vel")),
+    # the tip error from two noisy readings neither of which is observed (hidden channels)
+    "readings": dict(obs_features=("tip_error", "tip_error_avg", "target_vel"),
+                     obs_noise={"ee_pos": 0.01, "target_pos": 0.02, "tip_error": 0.003,
+                                "tip_error_avg": 0.001, "target_vel": 0.05}),
     "ragged": dict(max_lead=1.0, terminate_on_collision=True, w_termination=2.0,
                    w_collision=30.0, obs_noise={"joint_pos": 0.02}, obs_features=OBS_FEATURES),
     "latency": dict(obs_delay=2, action_delay=1, random_delay=True, obs_stack=2,
@@ -233,7 +237,8 @@ def test_the_fast_single_task_is_the_reference_bit_for_bit(name):
     task's and core's state after each step is the reference's."""
     config = EnvConfig(**{"episode_steps": 25, **SINGLE_CONFIGS[name]})
     fast, ref = LeadTaskOne(config, 1, nthread=1), LeadTask(config, 1, nthread=1)
-    assert fast._lean_lead == (name in ("default", "weights", "stack", "ragged", "iters"))
+    assert fast._lean_lead == (name in ("default", "weights", "stack", "readings", "ragged",
+                                         "iters"))
     rng = np.random.default_rng(4)
     ends = 0
     for episode in range(3):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -116,19 +117,49 @@ def test_deploy_refuses_an_unknown_condition(tmp_path, capsys):
 
 
 def test_noise_condition_reaches_the_tip_error():
-    """Under the study's 1 cm condition the tip error a learned lead observes is the true one
-    plus noise of sqrt(2) cm (two readings of 1 cm), as its positions are."""
+    """Under the study's 1 cm condition the tip error a learned lead observes is the tip
+    reading minus the target reading: the difference of the ee_pos and target_pos features it
+    observes beside it, noise and all (sqrt(2) cm about the true error, not an independent
+    draw)."""
     from panda_lead.config import OBS_15, OBS_SCALE
 
     deploy = _deploy_module()
     config = EnvConfig(obs_features=OBS_15 + ("tip_error",)).merged(deploy.overrides("noise1"))
     task = LeadTask(config, 64)
     task.rngs = [np.random.default_rng(s) for s in range(64)]
-    obs = task.reset(None, list(range(64)))
-    a, b = next((a, b) for f, a, b in task.layout if f == "tip_error")
+    obs = task.reset(None, list(range(64))).astype(np.float64)
+    cols = {f: slice(a, b) for f, a, b in task.layout}
+    seen = {f: obs[:, cols[f]] * OBS_SCALE[f] for f in ("tip_error", "ee_pos", "target_pos")}
     pos, _, _ = task.core.target()
-    seen = obs[:, a:b] * OBS_SCALE["tip_error"]
-    assert np.std(seen - (task.core.tip_pos - pos)) == pytest.approx(0.01 * np.sqrt(2), rel=0.15)
+    assert np.std(seen["tip_error"] - (task.core.tip_pos - pos)) == pytest.approx(
+        0.01 * np.sqrt(2), rel=0.15)
+    np.testing.assert_allclose(seen["tip_error"], seen["ee_pos"] - seen["target_pos"],
+                               atol=1e-6)  # float32 observations
+
+
+def test_unobserved_readings_still_carry_their_noise_into_the_tip_error():
+    """A lead that observes the tip error but neither position still sees the readings' noise
+    in it (hidden channels: std sqrt(s_tip^2 + s_target^2)), and the running average it
+    observes is the average of that measured error, not of the true one."""
+    from panda_lead.config import OBS_SCALE
+
+    config = EnvConfig(obs_features=("tip_error", "tip_error_avg"), episode_steps=50,
+                       obs_noise={"ee_pos": 0.03, "target_pos": 0.04}, error_avg_clip=1.0)
+    noisy, true = LeadTask(config, 200), LeadTask(replace(config, obs_noise={}), 200)
+    for task in (noisy, true):
+        task.rngs = [np.random.default_rng(s) for s in range(200)]
+        obs = task.reset(None, list(range(200))).astype(np.float64)
+    a, b = next((a, b) for f, a, b in noisy.layout if f == "tip_error")
+    pos, _, _ = noisy.core.target()
+    seen = noisy.observe().astype(np.float64)[:, a:b] * OBS_SCALE["tip_error"]
+    assert np.std(seen - (noisy.core.tip_pos - pos)) == pytest.approx(0.05, rel=0.1)
+    for _ in range(5):  # zero actions: both arms move alike, only the averages' inputs differ
+        noisy.step(np.zeros((200, 3)))
+        true.step(np.zeros((200, 3)))
+    np.testing.assert_array_equal(noisy.core.tip_pos, true.core.tip_pos)
+    rate = noisy.dt / config.error_avg_time  # 5 draws of 5 cm, weighted by the rate (no clip)
+    expected = 0.05 * rate * np.sqrt(sum((1 - rate) ** (2 * k) for k in range(5)))
+    assert np.std(noisy.err_avg - true.err_avg) == pytest.approx(expected, rel=0.15)
 
 
 def test_the_lead_filter_is_a_first_order_low_pass_in_the_loop():
