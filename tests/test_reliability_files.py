@@ -302,32 +302,61 @@ def test_an_rl_zoo_alias_bomb_is_refused_before_it_expands(tmp_path):
 
 # --- a run folder: progress.csv, best.json, train.py's values (#5, #6, #24, #25, #34) --------
 
+def _crash_on_fsync(monkeypatch):
+    """Make the next atomic write of progress.csv die after writing, before its rename."""
+    from panda_lead.training import callbacks
+
+    def killed(fd):
+        raise RuntimeError("killed before the rename")
+
+    monkeypatch.setattr(callbacks.os, "fsync", killed)
+
+
 def test_progress_csv_survives_a_crash_while_it_is_continued(tmp_path, monkeypatch):
     """#5: on --resume, SB3's "w+" open truncated progress.csv before its rows were written
     back: a crash in between emptied the run's log (3,527 -> 0 bytes)."""
-    from stable_baselines3.common import logger as sb3_logger
-
     from panda_lead.training.callbacks import _AppendingCSV
 
     path = tmp_path / "progress.csv"
     rows = "eval/mean_error_cm,time/total_timesteps\n5.1,512\n4.2,1024\n"
     path.write_text(rows)
-
-    class CrashAfterOpen(sb3_logger.CSVOutputFormat):
-        def __init__(self, filename):
-            super().__init__(filename)
-            raise RuntimeError("killed right after SB3's open")
-
-    monkeypatch.setattr(sb3_logger, "CSVOutputFormat", CrashAfterOpen)
-    with pytest.raises(RuntimeError, match="killed"):
-        _AppendingCSV(path)
+    with monkeypatch.context() as m:
+        _crash_on_fsync(m)
+        with pytest.raises(RuntimeError, match="killed"):
+            _AppendingCSV(path)
     assert path.read_text() == rows
-    monkeypatch.undo()
+    assert [f.name for f in tmp_path.iterdir()] == ["progress.csv"]  # no temporary left
     out = _AppendingCSV(path)
     out.write({"eval/mean_error_cm": 3.3, "time/total_timesteps": 1536}, {"eval/mean_error_cm":
               None, "time/total_timesteps": None})
     out.close()
     assert path.read_text() == rows + "3.3,1536\n"
+
+
+def test_a_new_column_is_added_in_a_new_copy_of_progress_csv(tmp_path, monkeypatch):
+    """SB3 adds a column (the first evaluation's keys, after training rows) by rewriting the
+    file in place from its start: a crash or a reader in the middle saw old and new rows mixed.
+    Here the old file stays whole until the new copy replaces it; the old rows are padded."""
+    from panda_lead.training.callbacks import _AppendingCSV
+
+    path = tmp_path / "progress.csv"
+    out = _AppendingCSV(path)
+    out.write({"time/total_timesteps": 512}, {"time/total_timesteps": None})
+    out.write({"time/total_timesteps": 1024}, {"time/total_timesteps": None})
+    before = path.read_text()
+    assert before == "time/total_timesteps\n512\n1024\n"
+    row = {"time/total_timesteps": 1536, "eval/mean_error_cm": 4.2, "eval/note": "a,b"}
+    excluded = dict.fromkeys(row)
+    with monkeypatch.context() as m:
+        _crash_on_fsync(m)
+        with pytest.raises(RuntimeError, match="killed"):
+            out.write(row, excluded)
+    assert path.read_text() == before
+    out.write(row, excluded)
+    out.write({"time/total_timesteps": 2048}, {"time/total_timesteps": None})
+    out.close()
+    assert path.read_text() == ("time/total_timesteps,eval/mean_error_cm,eval/note\n"
+                                "512,,\n1024,,\n1536,4.2,\"a,b\"\n2048,,\n")
 
 
 @pytest.mark.parametrize("damage", ["folder", "latin1"])

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.logger import CSVOutputFormat
 
 from .. import trajectory
 from ..controllers import classical, make_analytic, make_policy
@@ -285,29 +286,53 @@ def read_progress(path: Path) -> str:
                         "run's log cannot be continued; move it away to resume") from None
 
 
-class _AppendingCSV:
-    """SB3's CSV writer, continuing an existing progress.csv instead of truncating it.
+class _AppendingCSV(CSVOutputFormat):
+    """SB3's CSV writer, with its two in-place writes made atomic.
 
-    SB3 opens its file with "w+", which truncates: it is opened on a temporary name beside
-    progress.csv, the old rows are copied in, and the temporary is renamed over progress.csv
-    (atomicio), so a crash at any moment leaves the run's whole log under its name."""
+    SB3 opens its file with "w+", which truncates an existing progress.csv, and when a row
+    brings new keys (the first evaluation's, after the first training rows) it rewrites the
+    whole file in place from its start: a crash, or a reader, in the middle sees old and new
+    rows mixed. Here both are a new file written beside progress.csv and renamed over it
+    (atomicio): a resumed run's old rows are copied in, and a new key's column is added in a
+    new copy; a crash at any moment leaves the run's whole log under its name."""
 
-    def __new__(cls, filename: Path):
-        from stable_baselines3.common.logger import CSVOutputFormat
-
-        from ..atomicio import atomic_write
-
+    def __init__(self, filename: Path):  # (SB3's own would truncate: it is not called)
         path = Path(filename)
         old = read_progress(path)
-        if not old.strip():
-            return CSVOutputFormat(str(path))
-        with atomic_write(path, ".tmp.csv") as tmp:
-            out = CSVOutputFormat(tmp)  # the open file follows the rename
-            out.file.write(old if old.endswith("\n") else old + "\n")
-            out.file.flush()
-            os.fsync(out.file.fileno())
-        out.keys = old.splitlines()[0].split(",")
-        return out
+        self.keys, self.separator, self.quotechar = [], ",", '"'
+        self._path = path
+        if old.strip():
+            self._replace(old if old.endswith("\n") else old + "\n")
+            self.keys = old.splitlines()[0].split(",")
+        else:
+            self._replace("")
+
+    def _replace(self, text: str) -> None:
+        """Make ``text`` the file's whole content, atomically, and append from there on."""
+        from ..atomicio import atomic_write
+
+        with atomic_write(self._path, ".tmp.csv") as tmp:
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+        old_file, self.file = getattr(self, "file", None), open(self._path, "a+t",  # noqa: SIM115
+                                                                 encoding="utf-8")
+        if old_file is not None:
+            old_file.close()
+
+    def write(self, key_values, key_excluded, step: int = 0) -> None:
+        from stable_baselines3.common.logger import filter_excluded_keys
+
+        shown = filter_excluded_keys(key_values, key_excluded, "csv")
+        extra = [k for k in shown if k not in self.keys]
+        if extra:  # the new columns, in a new copy of the file (SB3's order and padding)
+            self.file.flush()
+            lines = self._path.read_text(encoding="utf-8").splitlines()
+            pad, keys = self.separator * len(extra), self.keys + extra
+            self._replace(",".join(keys) + "\n" + "".join(f"{row}{pad}\n" for row in lines[1:]))
+            self.keys = keys
+        super().write(key_values, key_excluded, step)  # no new key now: one appended row
 
 
 def make_logger(folder: Path):
