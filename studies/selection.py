@@ -69,8 +69,25 @@ def _commit() -> str:
                           text=True, cwd=ROOT).stdout.strip()
 
 
-def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, str]:
-    """(per-trajectory mean error cm, tip jerk RMS m/s^3, model sha256) on ``seeds``."""
+PREVIEW_FEATURES = ("target_preview", "preview_jerk")
+
+
+def knows_path(features) -> bool:
+    """Whether a model observes the planned path ahead (issue 37: never ranked with causal ones)."""
+    return any(f in PREVIEW_FEATURES for f in features)
+
+
+def _knows_path_of(record: dict) -> bool:
+    """A score record's flag; records made before it had one: from the model's sidecar."""
+    if "knows_path" in record:
+        return bool(record["knows_path"])
+    side = json.loads((ROOT / Path(record["model"]).with_suffix(".json")).read_text())
+    return knows_path(side["train_config"]["env"]["obs_features"])
+
+
+def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, str, bool]:
+    """(per-trajectory mean error cm, tip jerk RMS m/s^3, model sha256, whether it knows the
+    planned path) on ``seeds``."""
     from panda_lead.core import control_dt
     from panda_lead.harness import build
     from panda_lead.metrics.pairing import charged
@@ -83,15 +100,16 @@ def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, s
         m = rollout_metrics(charged(r)[0])
         err.append(m["mean_err"])
         jerk.append(m["jerk_rms"])
-    return np.array(err), np.array(jerk), ctrl.meta["model_sha256"]
+    return (np.array(err), np.array(jerk), ctrl.meta["model_sha256"],
+            knows_path(ctrl.config.obs_features))
 
 
 def size(args: Args) -> None:
     from panda_lead.seeds import SELECT_SEEDS
 
     seeds = SELECT_SEEDS[:args.pilot]
-    ea, ja, _ = play(args.model_a, seeds, args.duration)
-    eb, jb, _ = play(args.model_b, seeds, args.duration)
+    ea, ja, *_ = play(args.model_a, seeds, args.duration)
+    eb, jb, *_ = play(args.model_b, seeds, args.duration)
     d = eb - ea
     s = float(np.std(d, ddof=1))
     print(f"Made by `uv run studies/selection.py size` at commit {_commit()} (2-core Intel "
@@ -115,11 +133,12 @@ def score(args: Args) -> None:
         if out.exists() and not args.force:
             print(f"{out} exists (--force to replace)")
             continue
-        err, jerk, sha = play(Path(model), SELECT_SEEDS, args.duration)
+        err, jerk, sha, path_known = play(Path(model), SELECT_SEEDS, args.duration)
         from panda_lead.atomicio import atomic_write
 
         record = {"model": str(model), "model_sha256": sha, "commit": _commit(),
                   "seeds": [SELECT_SEEDS[0], SELECT_SEEDS[-1]], "duration_s": args.duration,
+                  "knows_path": path_known,
                   "mean_err_cm": [round(float(x), 5) for x in err],
                   "jerk_rms": [round(float(x), 2) for x in jerk]}
         with atomic_write(out, ".tmp") as tmp:
@@ -155,9 +174,14 @@ def rank(args: Args) -> None:
     print("Rule (2026-11-26): ordered by mean error on the selection set; neighbours whose "
           "paired 95% CI includes 0 are tied, and the smoother (lower mean tip jerk) ranks "
           "first.\n")
-    for title, groups in (("Studies (per-trajectory mean over the study's archived seeds)",
-                           {k: v for k, v in studies.items() if len(v) >= 3}),
-                          ("Models", {k: [k] for k in scores})):
+    preview = {k for k, rec in scores.items() if _knows_path_of(rec)}
+    tables = []
+    for kind, keep in (("causal", lambda k: k not in preview),
+                       ("knows the planned path", lambda k: k in preview)):
+        tables += [(f"Studies, {kind} (per-trajectory mean over the study's archived seeds)",
+                    {k: v for k, v in studies.items() if len(v) >= 3 and keep(v[0])}),
+                   (f"Models, {kind}", {k: [k] for k in scores if keep(k)})]
+    for title, groups in tables:
         if not groups:
             continue
         errors = {k: np.mean([scores[m]["mean_err_cm"] for m in v], axis=0)

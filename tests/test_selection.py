@@ -63,3 +63,29 @@ def test_tied_studies_rank_the_smoother_first_separated_ones_by_error():
     jerks = {"rough": 500.0, "smooth": 900.0, "worse": 100.0}
     assert [n for n, _ in runs.tie_ranked(errors, jerks, n_boot=2000)] == ["rough", "smooth",
                                                                           "worse"]
+
+
+def test_a_model_that_knows_the_path_is_never_ranked_with_causal_ones(tmp_path, monkeypatch,
+                                                                      capsys):
+    """Issue 37: the preview variant is labelled and kept apart in every table. A preview model
+    far ahead of two causal ones gets its own tables; the causal ones rank among themselves."""
+    import json
+
+    selection = _load("selection")
+    monkeypatch.setattr(selection, "SCORES", tmp_path)
+    span = [seeds.SELECT_SEEDS[0], seeds.SELECT_SEEDS[-1]]
+    rng = np.random.default_rng(1)
+    for name, level, knows in (("ahead", 0.5, True), ("causal_a", 2.0, False),
+                               ("causal_b", 2.5, False)):
+        errors = level + rng.normal(0.0, 0.1, 50)
+        (tmp_path / f"{name}.json").write_text(json.dumps({
+            "model": f"archive/{name}.zip", "seeds": span, "knows_path": knows,
+            "mean_err_cm": errors.tolist(), "jerk_rms": [500.0] * 50}))
+    selection.rank(selection.Args(command="rank"))
+    out = capsys.readouterr().out
+    causal, preview = out.split("Models, knows the planned path")
+    assert "Models, causal" in causal
+    assert "| 1 | causal_a |" in causal and "| 2 | causal_b |" in causal
+    assert "ahead" not in causal
+    assert "| 1 | ahead |" in preview
+    assert "causal_a" not in preview and "causal_b" not in preview
