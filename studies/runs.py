@@ -7,6 +7,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py choose --study v5 [--archive-as indep_v5 --runs sweeps/v5/runs]
     uv run studies/runs.py keep --study delayed_5m --runs sweeps/delayed_5m/runs  # each seed
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
+    uv run studies/runs.py compare --study preview_5m --against-study baseline:feedforward
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
     uv run studies/runs.py rank                      # which study's model is the headline
     uv run studies/runs.py curve --studies ikfree_long ikfree \
@@ -46,6 +47,7 @@ from panda_lead.errors import (
     UserError,
     check_output,
     check_plain_name,
+    did_you_mean,
     exit_on_user_error,
     parse_cli,
     printable,
@@ -81,7 +83,8 @@ class Args:
     """report: the baseline each run is compared with (classical, analytic, classical_500hz,
     analytic_500hz)."""
     against_study: str | None = None
-    """compare: the study --study is compared with (differences are study - against-study)."""
+    """compare: the study --study is compared with (differences are study - against-study), or
+    baseline:<name> for a controller of baselines.json (e.g. baseline:feedforward)."""
     archive_as: str | None = None
     """choose: archive the chosen run's best model under this name (needs its run folder)."""
     force: bool = False
@@ -191,19 +194,31 @@ def summarize(args: Args) -> None:
 
 BASELINES = {"classical": ("classical", {}), "analytic": ("analytic", {}),
              "classical_500hz": ("classical", {"ik": {"substep_ik": True}}),
-             "analytic_500hz": ("analytic", {"ik": {"substep_ik": True}})}
+             "analytic_500hz": ("analytic", {"ik": {"substep_ik": True}}),
+             # the classical rivals that KNOW THE PLANNED PATH (issue 37; tuned on the tuning
+             # seeds, results/studies/preview/rivals_tuning.md): never beside causal rows
+             "future_target": ("future_target", {}), "feedforward": ("feedforward", {})}
+KNOWS_PATH = ("future_target", "feedforward")
 
 
 def baselines(args: Args) -> None:
+    """Every baseline's per-trajectory test metrics into baselines.json: the ones the file
+    lacks (a rival added later costs only itself), all of them with --force."""
     from panda_lead import harness
     from panda_lead.atomicio import atomic_write
 
     path = RUNS_DIR / "baselines.json"
-    if path.exists() and not args.force:
-        raise UserError(f"{path} exists; add --force to recompute it")
+    out = {} if args.force or not path.exists() else read_json(path, "the baselines file")
+    if out and out.get("test_seeds") != TEST:
+        raise UserError(f"{path} is for test seeds {out.get('test_seeds')}, not {TEST}; add "
+                        "--force to recompute it")
+    missing = [name for name in BASELINES if name not in out]
+    if not missing:
+        raise UserError(f"{path} has every baseline; add --force to recompute it")
     tau_500 = _tau_500hz()
-    out = {"test_seeds": TEST, "analytic_500hz_tau": tau_500}
-    for name, (kind, settings) in BASELINES.items():
+    out = {**out, "test_seeds": TEST, "analytic_500hz_tau": tau_500}
+    for name in missing:
+        kind, settings = BASELINES[name]
         tau = tau_500 if name == "analytic_500hz" else None
         out[name] = _metrics_on_test(harness.build(kind, 500, None, settings, tau=tau))
         print(f"{name}: test mean error {np.mean(out[name]['mean_err']):.3f} cm", flush=True)
@@ -268,7 +283,7 @@ def compare_studies(args: Args) -> None:
     across trajectories (a CI over trajectories alone would call a lucky seed a finding)."""
     if not args.against_study:
         raise UserError("compare needs --against-study NAME")
-    a, b = load_study(args.against_study, ("test",)), load_study(args.study, ("test",))
+    a, b = _study_or_baseline(args.against_study), load_study(args.study, ("test",))
     same_test_seeds(a + b, f"--study {args.study} against --against-study {args.against_study}")
     from panda_lead.metrics import bootstrap_verdicts
 
@@ -304,6 +319,20 @@ def compare_studies(args: Args) -> None:
           f"| {args.study} better on |")
     print("|---|---|---|---|---|---|")
     print("\n".join(lines))
+
+
+def _study_or_baseline(name: str) -> list[dict]:
+    """A study's summaries, or for ``baseline:<name>`` a baseline of baselines.json as a study
+    of one seed (a classical controller has no training seeds: the bootstrap then resamples
+    the trajectories alone on its side)."""
+    if not name.startswith("baseline:"):
+        return load_study(name, ("test",))
+    base = name.removeprefix("baseline:")
+    if base not in BASELINES:
+        raise UserError(f"unknown baseline {base!r}; choose from {', '.join(BASELINES)}"
+                        + did_you_mean(base, BASELINES))
+    test = load_baseline(base)
+    return [{"seed": "-", "test": test, "test_seeds": test["test_seeds"]}]
 
 
 def rates(args: Args) -> None:

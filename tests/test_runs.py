@@ -212,3 +212,49 @@ def test_keep_commits_every_seed_only_if_it_is_the_model_its_summary_measured(
     capsys.readouterr()
     runs.keep(runs.Args("keep", study="s", runs=[sweep]))  # never replaced unasked
     assert capsys.readouterr().out.count("exists") == 2
+
+
+def test_a_study_is_compared_with_a_rival_from_the_baselines_file(runs, tmp_path, capsys):
+    """Issue 37: the classical rivals that know the planned path are baselines a study is
+    compared with (`compare --against-study baseline:feedforward`), with the study's seed spread
+    in the CI and none on the rival's side; an unknown rival is one clear line."""
+    from panda_lead.errors import UserError
+
+    write_study(tmp_path, "preview", {1: 2.0, 2: 2.1, 3: 2.2}, 1.0)
+    ff = {"mean_err": [1.5, 1.4, 1.6, 1.5], "settled_err": [1.0] * 4, "jerk_rms": [2.0] * 4}
+    (tmp_path / "baselines.json").write_text(json.dumps({"test_seeds": "0-3", "feedforward": ff}))
+    runs.compare_studies(runs.Args(command="compare", study="preview",
+                                   against_study="baseline:feedforward", bootstrap=200))
+    row = next(line for line in capsys.readouterr().out.splitlines()
+               if line.startswith("| mean error"))
+    cells = [c.strip() for c in row.split("|")]
+    assert cells[2:4] == ["1.500", "1.000"] and cells[4].startswith("-0.500")
+    with pytest.raises(UserError, match="unknown baseline 'feedfwd'.*feedforward"):
+        runs.compare_studies(runs.Args(command="compare", study="preview",
+                                       against_study="baseline:feedfwd"))
+
+
+def test_baselines_computes_only_the_rivals_the_file_lacks(runs, tmp_path, monkeypatch):
+    """Adding a rival to BASELINES costs that rival's rollouts, not every baseline's again;
+    with nothing missing the command says so, and --force recomputes all."""
+    from panda_lead import harness
+    from panda_lead.errors import UserError
+
+    played = []
+    monkeypatch.setattr(harness, "build", lambda kind, *a, **k: kind)
+    monkeypatch.setattr(runs, "_metrics_on_test", lambda kind: played.append(kind) or
+                        {"mean_err": [float(len(played))]})
+    monkeypatch.setattr(runs, "_tau_500hz", lambda: 0.03)
+    kept = {"mean_err": [9.0]}
+    old = {"test_seeds": runs.TEST, **{name: kept for name in runs.BASELINES
+                                       if name not in runs.KNOWS_PATH}}
+    (tmp_path / "baselines.json").write_text(json.dumps(old))
+    runs.baselines(runs.Args(command="baselines"))
+    assert played == ["future_target", "feedforward"]
+    out = json.loads((tmp_path / "baselines.json").read_text())
+    assert out["classical"] == kept and out["feedforward"] == {"mean_err": [2.0]}
+    with pytest.raises(UserError, match="has every baseline; add --force"):
+        runs.baselines(runs.Args(command="baselines"))
+    played.clear()
+    runs.baselines(runs.Args(command="baselines", force=True))
+    assert len(played) == len(runs.BASELINES)
