@@ -192,6 +192,14 @@ def table_steps() -> list[Step]:
              ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study", HS),
              _runs("preview_5m", HS), stdout=True),
     ]
+    # the preview study against the classical rivals given the same path (test seeds 0-999)
+    steps += [Step((f"{pv}/preview_5m_vs_{rival}.md",),
+                   ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study",
+                    f"baseline:{rival}"), _runs("preview_5m", "baselines.json"), stdout=True)
+              for rival in ("feedforward", "future_target")]
+    steps.append(Step((f"{pv}/{HS}_vs_feedforward.md",),
+                      ("studies/runs.py", "compare", "--study", HS, "--against-study",
+                       "baseline:feedforward"), _runs(HS, "baselines.json"), stdout=True))
     # issue 36, a lead a real arm could run: the study, and the deployability table
     steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
               _compare(DEPLOY_STUDY, HS)]

@@ -309,8 +309,13 @@ def compare_studies(args: Args) -> None:
     # The findings rule (metrics.finding_verdict): CI, pairs and Holm p over these metrics.
     verdicts = bootstrap_verdicts(cis, resamples, n)
     lines = [line.format(verdict=v) for line, v in zip(lines, verdicts, strict=True)]
+    rival = args.against_study.removeprefix("baseline:")
+    against = (f"`{args.against_study}` (a classical controller, no training seeds"
+               + (", KNOWS THE PLANNED PATH)" if rival in KNOWS_PATH else ")")
+               if args.against_study.startswith("baseline:") else
+               f"`{args.against_study}` ({len(a)} seeds: {', '.join(str(s['seed']) for s in a)})")
     print(f"`{args.study}` ({len(b)} seeds: {', '.join(str(s['seed']) for s in b)}) minus "
-          f"`{args.against_study}` ({len(a)} seeds: {', '.join(str(s['seed']) for s in a)}), "
+          f"{against}, "
           f"each the mean over its seeds per test trajectory ({TEST}); 95% CI: two-level "
           f"bootstrap over training seeds and trajectories ({args.bootstrap} resamples). "
           f"`uv run studies/runs.py compare --study {args.study} --against-study "
