@@ -265,3 +265,18 @@ def test_a_noisy_ik_target_reaches_the_classical_controller_and_the_filter_clean
     unfiltered, _ = goal_jerk(noisy, controllers.make_analytic())
     assert filtered < 0.5 * unfiltered
 
+
+
+def test_resetting_one_slot_keeps_the_other_slots_noisy_target_readings():
+    """A vector env resets a finished slot alone (observe(ids) draws noise for it only): the
+    other slots' IK keeps aiming at their own last noisy reading, not the true target."""
+    config = EnvConfig(episode_steps=30, noisy_ik_target=True,
+                       obs_noise={"target_pos": 0.01})
+    task = LeadTask(config, 3, nthread=1)
+    task.reset(None, [1, 2, 3])
+    task.step(np.zeros((3, 3)))
+    before = task._target_reading.copy()
+    assert np.all(np.abs(before - task.core.target()[0]) > 0)  # noisy readings
+    task.reset([1], [9])
+    assert np.array_equal(task._target_reading[[0, 2]], before[[0, 2]])
+    assert not np.array_equal(task._target_reading[1], before[1])
