@@ -192,6 +192,9 @@ def table_steps() -> list[Step]:
              ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study", HS),
              _runs("preview_5m", HS), stdout=True),
     ]
+    # issue 37's selection rule: every scored model and study on the selection set
+    steps.append(Step(("results/studies/rank/rank.md",), ("studies/selection.py", "rank"),
+                      ("results/studies/rank/scores",), stdout=True))
     # the preview study against the classical rivals given the same path (test seeds 0-999)
     steps += [Step((f"{pv}/preview_5m_vs_{rival}.md",),
                    ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study",

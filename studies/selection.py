@@ -174,6 +174,21 @@ def rank(args: Args) -> None:
     print("Rule (2026-11-26): ordered by mean error on the selection set; neighbours whose "
           "paired 95% CI includes 0 are tied, and the smoother (lower mean tip jerk) ranks "
           "first.\n")
+    print(f"Scored: {len(scores)} models; a study is ranked when at least 3 of its seeds' models "
+          "are archived (archive/seeds/<study>_s<k>.zip) and scored: "
+          f"{', '.join(sorted(k for k, v in studies.items() if len(v) >= 3)) or 'none'}.")
+    summarised = sorted(d.name for d in (ROOT / "results" / "runs").glob("*")
+                        if d.is_dir() and any(d.glob("seed_*.json")))
+    kept = {m.stem.rsplit("_s", 1)[0] for m in (ROOT / "archive" / "seeds").glob("*_s*.zip")}
+    unscored = [d for d in summarised if d in kept and len(studies.get(d, [])) < 3]
+    unkept = [d for d in summarised if d not in kept]
+    if unscored:
+        print(f"Kept but not yet scored: {', '.join(unscored)} (`uv run studies/selection.py "
+              "score --models archive/seeds/<study>_s*.zip`).")
+    if unkept:
+        print(f"Not ranked as studies: their seeds' models were not kept (run folders are "
+              f"machine-local; `studies/runs.py keep` archives them): {', '.join(unkept)}. "
+              "Their chosen models are in the Models tables.")
     preview = {k for k, rec in scores.items() if _knows_path_of(rec)}
     tables = []
     for kind, keep in (("causal", lambda k: k not in preview),
