@@ -148,7 +148,7 @@ def test_unobserved_readings_still_carry_their_noise_into_the_tip_error():
     noisy, true = LeadTask(config, 200), LeadTask(replace(config, obs_noise={}), 200)
     for task in (noisy, true):
         task.rngs = [np.random.default_rng(s) for s in range(200)]
-        obs = task.reset(None, list(range(200))).astype(np.float64)
+        task.reset(None, list(range(200)))
     a, b = next((a, b) for f, a, b in noisy.layout if f == "tip_error")
     pos, _, _ = noisy.core.target()
     seen = noisy.observe().astype(np.float64)[:, a:b] * OBS_SCALE["tip_error"]

@@ -316,8 +316,8 @@ class _AppendingCSV(CSVOutputFormat):
                 f.write(text)
                 f.flush()
                 os.fsync(f.fileno())
-        old_file, self.file = getattr(self, "file", None), open(self._path, "a+t",  # noqa: SIM115
-                                                                 encoding="utf-8")
+        old_file = getattr(self, "file", None)
+        self.file = open(self._path, "a+", encoding="utf-8")  # noqa: SIM115 (kept open, as SB3's)
         if old_file is not None:
             old_file.close()
 
