@@ -11,10 +11,11 @@ from .config import TrainConfig
 # ten times the distance term at a typical 10 cm error.
 COLLISION_WEIGHT = 100.0
 # Issue 36's training noise: 1 cm on positions, 0.1 m/s on velocities, 1 m/s^2 on the target's
-# acceleration (studies/robustness.py's 1 cm level), and the tip error as the difference of two
-# independent 1 cm readings (sqrt(2) cm).
+# acceleration (studies/robustness.py's 1 cm level). The tip error carries the two position
+# readings' noise (LeadTask._set_up_noise); until 2026-11-26 (the deploy_* models archived then)
+# it was an independent draw of sqrt(2) cm, given here as obs_noise["tip_error"].
 DEPLOY_NOISE = {"ee_pos": 0.01, "target_pos": 0.01, "ee_vel": 0.1, "target_vel": 0.1,
-                "target_acc": 1.0, "tip_error": 0.01 * 2 ** 0.5}
+                "target_acc": 1.0}
 
 
 def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
