@@ -82,6 +82,14 @@ def test_a_card_promises_the_snippets_number_not_its_sidecars(tmp_path):
     # A sidecar number the snippet does not print is named as the sidecar's, not promised.
     other = write_card(zip_path, {**side, "test_seed0_mean_error_cm": seed0 + 0.25}).read_text()
     assert promise in other and f"`test_seed0_mean_error_cm` ({seed0 + 0.25:.6f} cm)" in other
+    assert "observation noise changed" not in other  # ikfree trained without noise
+    # A model trained with noise on a position and the tip error observed: its snippet's
+    # training env has a new noise model since 2026-11-26, and the note says so.
+    noisy_env = {**side["train_config"]["env"], "obs_noise": {"ee_pos": 0.01},
+                 "obs_features": ["tip_error"]}
+    noisy = {**side, "test_seed0_mean_error_cm": seed0 + 0.25,
+             "train_config": {**side["train_config"], "env": noisy_env}}
+    assert "observation noise changed" in write_card(zip_path, noisy, seed0=seed0).read_text()
     # A sidecar that agrees with the snippet gets no such note.
     same = write_card(zip_path, {**side, "test_seed0_mean_error_cm": seed0}).read_text()
     assert promise in same and "`test_seed0_mean_error_cm`" not in same

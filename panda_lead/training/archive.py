@@ -191,7 +191,10 @@ def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
         f"\nThe sidecar's `test_seed0_mean_error_cm` ({stored:.6f} cm) was computed eval.py's way "
         "(the float64\nnumpy actor through the batched task, with the matrix kernels of the CPU "
         "that trained it); the\nsnippet's float32 `predict` differs from it by ~1e-7 in the "
-        "action, which this policy amplifies.")
+        "action, which this policy amplifies" + (
+            ",\nand the snippet plays the model's own training env, whose observation noise "
+            "changed\nafter it was archived (2026-11-26: the tip error carries the position "
+            "readings' noise)." if train_noise_changed(side) else "."))
     name = zip_path.stem
     train = side.get("train_config", {})
     test = side.get("test_metrics", {})
@@ -269,6 +272,16 @@ SHA-256 of the zip: `{side.get('model_sha256') or file_sha256(zip_path)}`
     with atomic_write(out, ".tmp.md") as tmp:
         Path(tmp).write_text(text)
     return out
+
+
+def train_noise_changed(side: dict) -> bool:
+    """Whether the card's snippet, which plays the model's own training env, may meet a noise
+    model other than the one it trained under: noise on a position with the tip error observed,
+    which since 2026-11-26 carries the position readings' noise (not an independent draw)."""
+    env = side.get("train_config", {}).get("env", {})
+    noise, features = env.get("obs_noise") or {}, env.get("obs_features") or ()
+    return bool({"tip_error", "tip_error_avg"} & set(features)) and bool(
+        noise.get("ee_pos") or noise.get("target_pos"))
 
 
 def rewrite_cards(names=None) -> list[Path]:
