@@ -170,12 +170,16 @@ class EnvConfig:
     action_delay: int = 0
     """Action latency in control steps: the lead applied now is the action chosen k steps ago."""
     random_delay: bool = False
-    """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay."""
+    """Draw each episode's delays uniformly from 0..obs_delay and 0..action_delay (and
+    0..target_delay when that is set)."""
     target_delay: int = 0
     """The target camera: the target the controller knows is k control steps old, for the IK's
     aim point and for every target feature observed (target_*, the tip error and its average,
     the preview), for every controller, the classical one included. Tracking is still measured
     against the true target. (obs_delay and action_delay instead delay the lead's channel.)"""
+    random_noise: bool = False
+    """Scale each episode's observation noise (obs_noise, every channel alike) by a factor drawn
+    uniformly from [0, 1]: training over every noise level up to obs_noise's, from none."""
     noisy_ik_target: bool = False
     """The IK aims at the target as measured: the latest observation's (noisy) target_pos
     reading, not the true target, so that observation noise reaches the classical controller

@@ -169,8 +169,8 @@ def make_predicting_analytic(tau: float = DEFAULT_TAU):
         vel = np.asarray(obs[:, slices["target_vel"]] * OBS_SCALE["target_vel"], float)
         acc = np.asarray(obs[:, slices["target_acc"]] * OBS_SCALE["target_acc"], float)
         delay = (np.asarray(task.obs_delay) + np.asarray(task.action_delay)) * task.dt
-        lead = analytic_lead(vel + acc * delay[:, None], acc,
-                             tau + task.config.target_delay * task.dt, max_lead)
+        reach = tau + np.asarray(task.target_delay)[:, None] * task.dt  # each slot's camera
+        lead = analytic_lead(vel + acc * delay[:, None], acc, reach, max_lead)
         return (lead / max_lead).astype(np.float32)
 
     return act

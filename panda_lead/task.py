@@ -71,6 +71,8 @@ class LeadTask:
         self._act_hist = np.zeros((n, c.action_delay + 1, self.action_dim))
         self.obs_delay = np.full(n, c.obs_delay)
         self.action_delay = np.full(n, c.action_delay)
+        self.target_delay = np.full(n, c.target_delay)  # the target camera's, per slot
+        self.noise_scale = np.ones(n)  # each slot's episode's share of obs_noise (random_noise)
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
         # noisy_ik_target: the observed target_pos reading's columns, and the latest reading
@@ -111,8 +113,10 @@ class LeadTask:
 
     def _draw_noise(self, ids) -> None:
         """Slots ``ids``' noise for this step (all when None), into self._noise."""
+        scaled = self.config.random_noise
         for i in self._all if ids is None else ids:
-            self._noise[i, self._noisy] = self.rngs[i].normal(0.0, self._noisy_std)
+            std = self._noisy_std * self.noise_scale[i] if scaled else self._noisy_std
+            self._noise[i, self._noisy] = self.rngs[i].normal(0.0, std)
 
     def _reading_noise(self) -> np.ndarray:
         """(N, 3) the measured tip error's noise: the tip reading's minus the target's."""
@@ -147,7 +151,13 @@ class LeadTask:
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
         self.err_avg[ids] = 0.0
+        if self.config.random_noise:  # (drawn only when asked: other settings' streams stay)
+            for i in ids:
+                self.noise_scale[i] = self.rngs[i].uniform()
         obs = self.observe(ids)
+        if self.config.random_delay and self.config.target_delay:
+            for i in ids:
+                self.target_delay[i] = self.rngs[i].integers(self.config.target_delay + 1)
         if self._delayed:
             if self.config.random_delay:
                 for i in ids:
@@ -217,7 +227,7 @@ class LeadTask:
         if self._avg_observed:
             source["tip_error_avg"] = self.err_avg
         if self._preview_observed:
-            k = np.minimum(np.maximum(core.step_count - self.config.target_delay, 0),
+            k = np.minimum(np.maximum(core.step_count - self.target_delay, 0),
                            self.config.episode_steps)
             for f, rows in self._preview.items():
                 source[f] = rows[self._all, k]
@@ -359,10 +369,11 @@ class LeadTask:
 
     def known_target(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(pos, vel, acc) of the target the controller knows, (N, 3) each: the true target
-        of EnvConfig.target_delay steps ago (the episode's first while there is none older)."""
+        of EnvConfig.target_delay steps ago (each slot's own, drawn per episode under
+        random_delay; the episode's first while there is none older)."""
         core = self.core
         k = np.maximum(np.minimum(core.step_count, core.target_pos.shape[1] - 1)
-                       - self.config.target_delay, 0)
+                       - self.target_delay, 0)
         i = self._all
         return core.target_pos[i, k], core.target_vel[i, k], core.target_acc[i, k]
 

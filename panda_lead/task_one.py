@@ -152,8 +152,10 @@ class LeadTaskOne(LeadTask):
         dx, dy, dz = e0 - t0, e1 - t1, e2 - t2
         dist = math.sqrt((dx * dx + dy * dy) + dz * dz)  # _distance() on Python floats
         noise = reading = None
-        if self._noisy_list:  # this step's draw, first (LeadTask._draw_noise): the average
-            drawn = self.rngs[0].normal(0.0, self._noisy_std)  # takes the measured error
+        if self._noisy_list:  # this step's draw, first (LeadTask._draw_noise):
+            std = (self._noisy_std * self.noise_scale[0] if c.random_noise
+                   else self._noisy_std)  # (_draw_noise's)
+            drawn = self.rngs[0].normal(0.0, std)  # the average takes the measured error
             self._noise[0, self._noisy] = drawn
             noise = self._noise[0].tolist()
             if self._error_noisy:  # the tip reading's noise minus the target reading's

@@ -194,7 +194,7 @@ SINGLE_CONFIGS = {
     # the tip error from two noisy readings neither of which is observed (hidden channels)
     "readings": dict(obs_features=("tip_error", "tip_error_avg", "target_vel"),
                      obs_noise={"ee_pos": 0.01, "target_pos": 0.02, "tip_error": 0.003,
-                                "tip_error_avg": 0.001, "target_vel": 0.05}),
+                                "tip_error_avg": 0.001, "target_vel": 0.05}, random_noise=True),
     "ragged": dict(max_lead=1.0, terminate_on_collision=True, w_termination=2.0,
                    w_collision=30.0, obs_noise={"joint_pos": 0.02}, obs_features=OBS_FEATURES),
     "latency": dict(obs_delay=2, action_delay=1, random_delay=True, obs_stack=2,
@@ -206,6 +206,10 @@ SINGLE_CONFIGS = {
     "iters": dict(ik={"iters": 3, "max_step": 0.02}),
     "lead_filter": dict(lead_filter_hz=8.0, obs_features=("tip_error", "prev_action")),
     "target_camera": dict(target_delay=2, obs_features=OBS_FEATURES),
+    # the camera's delay and the noise's level drawn per episode, the IK at the noisy reading
+    "random_camera": dict(target_delay=3, random_delay=True, random_noise=True,
+                          noisy_ik_target=True, obs_features=OBS_FEATURES,
+                          obs_noise={"ee_pos": 0.01, "target_pos": 0.01, "target_vel": 0.1}),
     "noisy_ik_target": dict(noisy_ik_target=True, obs_noise={"target_pos": 0.01}),
 }
 

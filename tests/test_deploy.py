@@ -280,3 +280,38 @@ def test_resetting_one_slot_keeps_the_other_slots_noisy_target_readings():
     task.reset([1], [9])
     assert np.array_equal(task._target_reading[[0, 2]], before[[0, 2]])
     assert not np.array_equal(task._target_reading[1], before[1])
+
+
+def test_the_cameras_delay_and_the_noise_level_are_drawn_per_episode():
+    """random_delay with target_delay k: each episode knows the target of its own 0..k steps
+    ago (drawn from the slot's generator, so a replay of the seed draws it again); random_noise:
+    each episode's noise is obs_noise times its own factor in [0, 1]."""
+    from panda_lead.config import OBS_SCALE
+
+    config = EnvConfig(episode_steps=20, target_delay=3, random_delay=True, random_noise=True,
+                       obs_features=("target_pos",), obs_noise={"target_pos": 0.01})
+    task = LeadTask(config, 64)
+    task.rngs = [np.random.default_rng(s) for s in range(64)]
+    task.reset(None, list(range(64)))
+    assert set(task.target_delay.tolist()) == {0, 1, 2, 3}
+    assert 0 < task.noise_scale.min() and task.noise_scale.max() < 1
+    assert len(set(task.noise_scale.tolist())) == 64
+    for _ in range(6):
+        obs = task.step(np.zeros((64, 3)))[0]
+    pos, _, _ = task.known_target()
+    steps = task.core.step_count
+    for i in (0, 1, 2):  # each slot's known target is its own camera's
+        assert np.array_equal(pos[i], task.core.target_pos[i, steps[i] - task.target_delay[i]])
+    # noise about each slot's known target, in proportion to its factor: 500 readings per slot
+    readings = []
+    for _ in range(500):
+        task.observe()
+        readings.append(task._raw[:, :3] - task.known_target()[0])
+    spread = np.std(np.array(readings), axis=(0, 2))
+    np.testing.assert_allclose(spread, 0.01 * task.noise_scale, rtol=0.1, atol=2e-4)
+    again = LeadTask(config, 64)
+    again.rngs = [np.random.default_rng(s) for s in range(64)]
+    again.reset(None, list(range(64)))
+    assert np.array_equal(again.target_delay, task.target_delay) and np.array_equal(
+        again.noise_scale, task.noise_scale)
+    assert obs.dtype == np.float32 and OBS_SCALE["target_pos"] == 1.0
