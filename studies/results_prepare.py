@@ -17,7 +17,8 @@ from results_steps import HEADLINE, HEADLINE_STUDY, PREVIOUS, SMOOTH
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
-              "v5_err_decay_wide_lr3e-4", "joint_5m", "curriculum_5m", "v9_5m", "ikfree_50m"]
+              "v5_err_decay_wide_lr3e-4", "joint_5m", "curriculum_5m", "v9_5m", "ikfree_50m",
+              "deploy_lowpass_5m", "preview_5m"]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
@@ -28,10 +29,16 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
           PREVIOUS: (PREVIOUS, [PREVIOUS]), SMOOTH: (SMOOTH, [SMOOTH]),
           "ikfree_long": ("ikfree_long", ["ikfree_long"]),
           "delayed_5m": ("delayed_5m", ["delayed_5m"]), "noisy_5m": ("noisy_5m", ["noisy_5m"]),
-          "v7_5m": ("v7", ["v7"]), "joint_5m": ("joint_5m", ["joint_5m", "joint_5m_s45"])}
+          "v7_5m": ("v7", ["v7"]), "joint_5m": ("joint_5m", ["joint_5m", "joint_5m_s45"]),
+          "deploy_lowpass_5m": ("deploy_lowpass_5m", ["deploy_lowpass_5m"]),
+          "preview_5m": ("preview_5m", ["preview_5m"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
-        "v7": "v7"}  # every seed's model committed (archive/seeds/), for the per-seed tables
-POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long"]
+        "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m"}
+# (every seed's model committed, archive/seeds/, for the per-seed tables)
+POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
+               "preview_5m"]
+# the ILC oracle's rollout sets (test seeds 0-199): prefix -> the archived model it starts from
+ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m"}
 
 
 def _run(root: Path, *argv: str) -> None:
@@ -82,8 +89,9 @@ def prepare(root: Path) -> None:
         if want and have != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", m, "--model", f"archive/{m}.zip",
                  "--force")
-    # the oracle: 20 replays per trajectory, started from the headline's lead, seeds 0-199
-    want = _archived_sha(root, HEADLINE)
-    if want and _set_model(root, "ilc") != want:
-        _run(root, "ikpd.py", "--controller", "ilc", "--seeds", "0-199", "--prefix", "ilc",
-             "--model", f"archive/{HEADLINE}.zip", "--force")
+    # the oracles: 20 replays per trajectory, started from a model's lead, seeds 0-199
+    for prefix, model in ORACLES.items():
+        want = _archived_sha(root, model)
+        if want and _set_model(root, prefix) != want:
+            _run(root, "ikpd.py", "--controller", "ilc", "--seeds", "0-199", "--prefix", prefix,
+                 "--model", f"archive/{model}.zip", "--force")

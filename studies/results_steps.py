@@ -192,6 +192,12 @@ def table_steps() -> list[Step]:
              ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study", HS),
              _runs("preview_5m", HS), stdout=True),
     ]
+    # the preview lead's share of the oracle's gain, the oracle restarted from it (0-199)
+    steps.append(Step((f"{pv}/preview_5m_with_oracle.md",),
+                      ("metrics.py", "--prefix-a", "analytic", "--prefix-b", "preview_5m",
+                       "--oracle", "ilc_preview", "--markdown"),
+                      ("rollouts/analytic", "rollouts/preview_5m", "rollouts/ilc_preview"),
+                      stdout=True, section="all"))
     # issue 37's selection rule: every scored model and study on the selection set
     steps.append(Step(("results/studies/rank/rank.md",), ("studies/selection.py", "rank"),
                       ("results/studies/rank/scores",), stdout=True))
