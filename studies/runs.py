@@ -480,25 +480,38 @@ def keep(args: Args) -> None:
 def rank(args: Args) -> None:
     """Every study with committed summaries, ordered by the mean of its seeds' best
     evaluation-set errors (selection data only; test numbers are shown, never used)."""
-    rows = []
+    rows, preview = [], []
     for folder in sorted(p for p in RUNS_DIR.iterdir() if p.is_dir()):
         runs = load_study(folder.name)
         evals = [s["best"]["mean_error_cm"] for s in runs]
-        rows.append((float(np.mean(evals)), folder.name, runs, evals))
+        row = (float(np.mean(evals)), folder.name, runs, evals)
+        (preview if any(_knows_path(s) for s in runs) else rows).append(row)
     rows.sort(key=lambda r: r[0])
+    preview.sort(key=lambda r: r[0])
     eligible = [r for r in rows if len(r[2]) >= 3]
     print("Studies by the mean of their seeds' best evaluation-set error (15 trajectories, "
           "never a test seed); the headline is the first with >= 3 seeds, its chosen run the "
-          "model. `uv run studies/runs.py rank`\n")
-    print("| study | seeds | best eval per seed (cm) | mean | chosen seed | test mean (cm) | "
-          "test settled (cm) |")
-    print("|---|---|---|---|---|---|---|")
-    for mean, name, runs, evals in rows:
-        c = choose_run(runs)
-        mark = " **headline**" if eligible and name == eligible[0][1] else ""
-        print(f"| {name}{mark} | {len(runs)} | {', '.join(f'{e:.2f}' for e in evals)} | "
-              f"{mean:.2f} | {c['seed']} | {np.mean(c['test']['mean_err']):.2f} | "
-              f"{np.mean(c['test']['settled_err']):.2f} |")
+          "model. Studies that know the planned path are ranked apart, after. "
+          "`uv run studies/runs.py rank`\n")
+    for title, group in (("", rows), ("\nKNOWS THE PLANNED PATH (never the headline)\n", preview)):
+        if not group:
+            continue
+        print(title)
+        print("| study | seeds | best eval per seed (cm) | mean | chosen seed | test mean (cm) | "
+              "test settled (cm) |")
+        print("|---|---|---|---|---|---|---|")
+        for mean, name, runs, evals in group:
+            c = choose_run(runs)
+            mark = " **headline**" if eligible and name == eligible[0][1] else ""
+            print(f"| {name}{mark} | {len(runs)} | {', '.join(f'{e:.2f}' for e in evals)} | "
+                  f"{mean:.2f} | {c['seed']} | {np.mean(c['test']['mean_err']):.2f} | "
+                  f"{np.mean(c['test']['settled_err']):.2f} |")
+
+
+def _knows_path(summary: dict) -> bool:
+    """Whether a run observed the planned path ahead (a labelled variant, issue 37)."""
+    env = (summary.get("train_config") or {}).get("env") or {}
+    return any(f in ("target_preview", "preview_jerk") for f in env.get("obs_features") or ())
 
 
 # The selection rule that does not wobble (issue 37, stated 2026-11-26; docs/training.md):

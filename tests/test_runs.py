@@ -258,3 +258,19 @@ def test_baselines_computes_only_the_rivals_the_file_lacks(runs, tmp_path, monke
     played.clear()
     runs.baselines(runs.Args(command="baselines", force=True))
     assert len(played) == len(runs.BASELINES)
+
+
+def test_a_study_that_knows_the_path_is_never_the_headline(runs, tmp_path, capsys):
+    """Issue 37: the preview variant is ranked apart, after the causal studies, however low its
+    evaluation errors."""
+    write_study(tmp_path, "causal", {1: 2.0, 2: 2.0, 3: 2.0}, 2.0)
+    write_study(tmp_path, "ahead", {1: 1.0, 2: 1.0, 3: 1.0}, 1.0)
+    for f in (tmp_path / "ahead").glob("seed_*.json"):
+        summary = json.loads(f.read_text())
+        summary["train_config"] = {"env": {"obs_features": ["tip_error", "target_preview"]}}
+        f.write_text(json.dumps(summary))
+    runs.rank(runs.Args(command="rank"))
+    out = capsys.readouterr().out
+    causal, apart = out.split("KNOWS THE PLANNED PATH")
+    assert "| causal **headline** |" in causal and "ahead" not in causal
+    assert "| ahead |" in apart
