@@ -18,7 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import tyro
+
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 
 @dataclass
@@ -254,7 +255,7 @@ def repo_default() -> dict:
 
 
 def main() -> None:
-    args = tyro.cli(Args, description=__doc__)
+    args = parse_cli(Args, description=__doc__)
     cores = os.cpu_count() or 1
     max_workers = args.max_workers or cores
     reps = 3 if args.quick else args.repeats
@@ -329,5 +330,5 @@ def main() -> None:
         args.out.write_text(table + "\n")
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(main)()

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import tyro
+
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 PREVIEW_SCALE_M = 0.1
@@ -139,5 +140,5 @@ def main(args: Args) -> None:
                   flush=True)
 
 
-if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()

@@ -15,7 +15,8 @@ import subprocess
 from dataclasses import dataclass
 
 import numpy as np
-import tyro
+
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 
 @dataclass
@@ -76,5 +77,5 @@ def main(args: Args) -> None:
           f"{controllers.FEEDFORWARD_GAIN}, IK look-ahead {controllers.FEEDFORWARD_TAU_IK}.")
 
 
-if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()

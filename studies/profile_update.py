@@ -28,9 +28,9 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import tyro
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 PARTS = ["env step (IK, physics, reward)", "policy forward (collection)",
          "SB3 collection loop (rest)", "update: forward", "update: backward",
@@ -190,7 +190,7 @@ def cpu_model_name() -> str:
 
 
 def main() -> None:
-    args = tyro.cli(Args, description=__doc__)
+    args = parse_cli(Args, description=__doc__)
     if args.update_only:
         return update_only(args)
     from bench import bench_physics, cpu_model
@@ -244,5 +244,5 @@ def main() -> None:
           f"{len(physics)}, one thread) -> {limit:,.0f} samples/s on {cores} cores; "
           + ", ".join(f"{v} at {rates[v] / limit:.0%} of it" for v in args.variants))
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(main)()

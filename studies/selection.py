@@ -35,6 +35,8 @@ from typing import Literal
 import numpy as np
 import tyro
 
+from panda_lead.errors import exit_on_user_error, parse_cli
+
 ROOT = Path(__file__).resolve().parents[1]
 SCORES = ROOT / "results" / "studies" / "rank" / "scores"
 Z_95, Z_POWER_80 = 1.959964, 0.841621
@@ -215,5 +217,5 @@ def main(args: Args) -> None:
     {"size": size, "score": score, "rank": rank}[args.command](args)
 
 
-if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()

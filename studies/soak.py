@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
-import tyro
+
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 
 @dataclass
@@ -84,7 +85,7 @@ def soak(args: Args) -> dict:
 
 
 def main() -> int:
-    args = tyro.cli(Args, description=__doc__)
+    args = parse_cli(Args, description=__doc__)
     t = time.perf_counter()
     total = soak(args)
     wall = time.perf_counter() - t
@@ -101,5 +102,5 @@ def main() -> int:
     return 0 if ok else 1
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    sys.exit(exit_on_user_error(main)())

@@ -14,9 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import tyro
 
-from panda_lead.errors import exit_on_user_error
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 
 @dataclass
@@ -78,5 +77,5 @@ def main(args: Args) -> None:
               f"{np.std(means, ddof=1):.2f} cm (mean ± std), range {min(means):.2f}-{max(means):.2f}")
 
 
-if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()

@@ -15,7 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import tyro
+
+from panda_lead.errors import exit_on_user_error, parse_cli
 
 
 @dataclass
@@ -48,5 +49,5 @@ def main(args: Args) -> None:
     print(f"best tau {best:.2f} s ({errors[best]:.2f} cm); in use: {controllers.DEFAULT_TAU} s")
 
 
-if __name__ == "__main__":
-    main(tyro.cli(Args, description=__doc__))
+if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
+    exit_on_user_error(lambda: main(parse_cli(Args, description=__doc__)))()

@@ -281,6 +281,21 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("script,args,words", [
+    ("studies/selection.py", ["score", "--models", "archive/nope.zip"], ["model not found"]),
+    ("studies/selection.py", ["rnak"], ["rnak"]),
+    ("studies/tau.py", ["--taus", "x"], ["--taus"]),
+    ("studies/spread.py", ["--bogus"], ["Unrecognized options: --bogus"]),
+    ("studies/bench.py", ["--repeats", "x"], ["--repeats: invalid literal for int()"]),
+    ("studies/soak.py", ["--bogus"], ["Unrecognized options: --bogus"]),
+])
+def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
+    """The study scripts' entry points go through exit_on_user_error and parse_cli like the
+    rest (selection.py printed a ModelError's traceback for a missing model)."""
+    one_line(run_process(ROOT / script, *args, cwd=tmp_path), *words)
+    assert not any(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("script", ["metrics.py", "trajectory.py", "studies/sweep.py"])
 def test_help_is_untouched(tmp_path, script):
     out = run(ROOT / script, "--help", cwd=tmp_path)
