@@ -88,7 +88,9 @@ def check_output(path, flag: str, force: bool):
 
 
 def exit_on_user_error(main: Callable) -> Callable:
-    """Wrap an entry point: a UserError becomes 'error: ...' on stderr and exit status 2."""
+    """Wrap an entry point: a UserError becomes 'error: ...' on stderr and exit status 2; a
+    reader that stops reading (`... | head`) ends the command quietly, as any Unix tool,
+    with status 141 (128 + SIGPIPE), not a BrokenPipeError traceback."""
 
     @wraps(main)
     def run(*args, **kwargs):
@@ -97,8 +99,22 @@ def exit_on_user_error(main: Callable) -> Callable:
         except UserError as exc:
             print(f"error: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
+        except BrokenPipeError:
+            _silence_stdout()  # (Python flushes stdout at exit: into the closed pipe again)
+            raise SystemExit(141) from None
 
     return run
+
+
+def _silence_stdout() -> None:
+    """Point stdout's file descriptor at /dev/null (the reader of the pipe has gone)."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 # What tyro draws around an error: box corners and sides, and the rules between sections.

@@ -459,3 +459,20 @@ def test_an_unknown_queue_is_one_line_and_trains_nothing(tmp_path):
     assert result.stdout == ""
     one_line(result, "no queue 'headline_5'", "headline5")
     assert not (ROOT / "sweeps" / "headline_5").exists()
+
+
+def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path):
+    """`uv run studies/runs.py rank | head -1`: the reader closes the pipe, the next write
+    fails with EPIPE. The command stops with 141 (128 + SIGPIPE) and no traceback. The pipe's
+    read end is closed before the command starts, so its first write fails, whatever the
+    machine's speed."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.run([sys.executable, str(ROOT / "studies" / "runs.py"), "rank"],
+                              stdout=write_end, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                              timeout=600)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141, proc.stderr
+    assert "Traceback" not in proc.stderr and "BrokenPipeError" not in proc.stderr
