@@ -25,6 +25,16 @@ OBS_FEATURES = {
     "target_preview": 18,  # PREVIEW_POINTS future target offsets (EnvConfig.preview_times)
     "preview_jerk": 18,  # the same points as what the Taylor guess misses (see OBS_SCALE)
 }
+# The features that show the planned path ahead: a model observing one "knows the planned path"
+# (issue 37), a labelled variant never ranked with the causal ones.
+PATH_FEATURES = ("target_preview", "preview_jerk")
+
+
+def knows_path(features) -> bool:
+    """Whether observation features ``features`` include the planned path ahead."""
+    return any(f in PATH_FEATURES for f in features or ())
+
+
 # Each feature is divided by a fixed scale so that every input of the policy is of order one
 # (velocities peak near 2.5 m/s, accelerations near 30 m/s^2): a fixed scale needs no running
 # statistics to save beside a model, unlike VecNormalize.

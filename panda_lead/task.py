@@ -12,7 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from . import trajectory
-from .config import OBS_SCALE, REWARD_TERMS, EnvConfig, action_dim, failure_of, obs_layout
+from .config import (
+    OBS_SCALE,
+    PATH_FEATURES,
+    REWARD_TERMS,
+    EnvConfig,
+    action_dim,
+    failure_of,
+    obs_layout,
+)
 from .core import ArmBatch
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 from .trajectory import reachable
@@ -46,7 +54,7 @@ class LeadTask:
         # target_preview, preview_jerk: each slot's path ahead at every step of its episode,
         # computed from its trajectory at its reset (the path ahead runs past the episode's end)
         self._preview = {f: np.zeros((n, c.episode_steps + 1, 3 * len(c.preview_times)))
-                         for f in ("target_preview", "preview_jerk") if f in self._features}
+                         for f in PATH_FEATURES if f in self._features}
         self._preview_observed = bool(self._preview)
         self._avg_rate, self._avg_clip = self.dt / c.error_avg_time, c.error_avg_clip
         self._w = {k: getattr(c, f"w_{k}") for k in REWARD_TERMS}
@@ -236,11 +244,16 @@ class LeadTask:
         if len(self._noisy):
             if not drawn:
                 self._draw_noise(ids)
-            rows = self._all if ids is None else ids
-            noisy = self._noisy_obs
-            raw[np.ix_(rows, noisy)] += self._noise[np.ix_(rows, noisy)]
-            if self._error_noisy and self._error_cols is not None:
-                raw[np.ix_(rows, self._error_cols)] += self._reading_noise()[rows]
+            noisy, errs = self._noisy_obs, self._error_cols
+            errs = errs if self._error_noisy else None
+            if ids is None:  # every slot (a step without resets): no index arrays to build
+                raw[:, noisy] += self._noise[:, noisy]
+                if errs is not None:
+                    raw[:, errs] += self._reading_noise()
+            else:
+                raw[np.ix_(ids, noisy)] += self._noise[np.ix_(ids, noisy)]
+                if errs is not None:
+                    raw[np.ix_(ids, errs)] += self._reading_noise()[ids]
         if self.config.noisy_ik_target:  # the reading the IK aims at until the next one,
             rows = self._all if ids is None else ids  # of the slots observed (noise drawn)
             self._target_reading[rows] = raw[rows, self._target_cols]

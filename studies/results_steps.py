@@ -206,6 +206,10 @@ def table_steps() -> list[Step]:
                    ("studies/runs.py", "compare", "--study", "preview_5m", "--against-study",
                     f"baseline:{rival}"), _runs("preview_5m", "baselines.json"), stdout=True)
               for rival in ("feedforward", "future_target")]
+    steps.append(Step((f"{pv}/feedforward_vs_analytic_1000.md",),
+                      ("studies/runs.py", "compare", "--study", "baseline:feedforward",
+                       "--against-study", "baseline:analytic"), _runs("baselines.json"),
+                      stdout=True))
     steps.append(Step((f"{pv}/{HS}_vs_feedforward.md",),
                       ("studies/runs.py", "compare", "--study", HS, "--against-study",
                        "baseline:feedforward"), _runs(HS, "baselines.json"), stdout=True))

@@ -43,6 +43,7 @@ from typing import Literal
 import numpy as np
 import tyro
 
+from panda_lead.config import knows_path
 from panda_lead.errors import (
     UserError,
     check_output,
@@ -83,8 +84,8 @@ class Args:
     """report: the baseline each run is compared with (classical, analytic, classical_500hz,
     analytic_500hz)."""
     against_study: str | None = None
-    """compare: the study --study is compared with (differences are study - against-study), or
-    baseline:<name> for a controller of baselines.json (e.g. baseline:feedforward)."""
+    """compare: the study --study is compared with (differences are study - against-study); either
+    side may be baseline:<name>, a controller of baselines.json (e.g. baseline:feedforward)."""
     archive_as: str | None = None
     """choose: archive the chosen run's best model under this name (needs its run folder)."""
     force: bool = False
@@ -283,7 +284,7 @@ def compare_studies(args: Args) -> None:
     across trajectories (a CI over trajectories alone would call a lucky seed a finding)."""
     if not args.against_study:
         raise UserError("compare needs --against-study NAME")
-    a, b = _study_or_baseline(args.against_study), load_study(args.study, ("test",))
+    a, b = _study_or_baseline(args.against_study), _study_or_baseline(args.study)
     same_test_seeds(a + b, f"--study {args.study} against --against-study {args.against_study}")
     from panda_lead.metrics import bootstrap_verdicts
 
@@ -309,13 +310,8 @@ def compare_studies(args: Args) -> None:
     # The findings rule (metrics.finding_verdict): CI, pairs and Holm p over these metrics.
     verdicts = bootstrap_verdicts(cis, resamples, n)
     lines = [line.format(verdict=v) for line, v in zip(lines, verdicts, strict=True)]
-    rival = args.against_study.removeprefix("baseline:")
-    against = (f"`{args.against_study}` (a classical controller, no training seeds"
-               + (", KNOWS THE PLANNED PATH)" if rival in KNOWS_PATH else ")")
-               if args.against_study.startswith("baseline:") else
-               f"`{args.against_study}` ({len(a)} seeds: {', '.join(str(s['seed']) for s in a)})")
-    print(f"`{args.study}` ({len(b)} seeds: {', '.join(str(s['seed']) for s in b)}) minus "
-          f"{against}, "
+    against = _described(args.against_study, a)
+    print(f"{_described(args.study, b)} minus {against}, "
           f"each the mean over its seeds per test trajectory ({TEST}); 95% CI: two-level "
           f"bootstrap over training seeds and trajectories ({args.bootstrap} resamples). "
           f"`uv run studies/runs.py compare --study {args.study} --against-study "
@@ -324,6 +320,15 @@ def compare_studies(args: Args) -> None:
           f"| {args.study} better on |")
     print("|---|---|---|---|---|---|")
     print("\n".join(lines))
+
+
+def _described(name: str, runs: list[dict]) -> str:
+    """A compared side as the table's first line names it."""
+    if name.startswith("baseline:"):
+        rival = name.removeprefix("baseline:")
+        return (f"`{name}` (a classical controller, no training seeds"
+                + (", KNOWS THE PLANNED PATH)" if rival in KNOWS_PATH else ")"))
+    return f"`{name}` ({len(runs)} seeds: {', '.join(str(s['seed']) for s in runs)})"
 
 
 def _study_or_baseline(name: str) -> list[dict]:
@@ -485,7 +490,9 @@ def rank(args: Args) -> None:
         runs = load_study(folder.name)
         evals = [s["best"]["mean_error_cm"] for s in runs]
         row = (float(np.mean(evals)), folder.name, runs, evals)
-        (preview if any(_knows_path(s) for s in runs) else rows).append(row)
+        seen = (((s.get("train_config") or {}).get("env") or {}).get("obs_features")
+                for s in runs)
+        (preview if any(knows_path(f) for f in seen) else rows).append(row)
     rows.sort(key=lambda r: r[0])
     preview.sort(key=lambda r: r[0])
     eligible = [r for r in rows if len(r[2]) >= 3]
@@ -507,11 +514,6 @@ def rank(args: Args) -> None:
                   f"{mean:.2f} | {c['seed']} | {np.mean(c['test']['mean_err']):.2f} | "
                   f"{np.mean(c['test']['settled_err']):.2f} |")
 
-
-def _knows_path(summary: dict) -> bool:
-    """Whether a run observed the planned path ahead (a labelled variant, issue 37)."""
-    env = (summary.get("train_config") or {}).get("env") or {}
-    return any(f in ("target_preview", "preview_jerk") for f in env.get("obs_features") or ())
 
 
 # The selection rule that does not wobble (issue 37, stated 2026-11-26; docs/training.md):

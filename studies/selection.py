@@ -35,6 +35,7 @@ from typing import Literal
 import numpy as np
 import tyro
 
+from panda_lead.config import knows_path
 from panda_lead.errors import exit_on_user_error, parse_cli
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,14 +70,6 @@ def size_for(spread_cm: float, delta_cm: float = DELTA_CM) -> int:
 def _commit() -> str:
     return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True, cwd=ROOT).stdout.strip()
-
-
-PREVIEW_FEATURES = ("target_preview", "preview_jerk")
-
-
-def knows_path(features) -> bool:
-    """Whether a model observes the planned path ahead (issue 37: never ranked with causal ones)."""
-    return any(f in PREVIEW_FEATURES for f in features)
 
 
 def _knows_path_of(record: dict) -> bool:
