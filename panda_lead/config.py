@@ -194,6 +194,14 @@ class EnvConfig:
     """The IK aims at the target as measured: the latest observation's (noisy) target_pos
     reading, not the true target, so that observation noise reaches the classical controller
     too (one tracker measures the target for everything). Needs target_pos observed."""
+    target_filter: bool = False
+    """The tracker's Kalman filter on the target readings (panda_lead/kalman.py, the filtered
+    analytic lead's own, tuned on the tuning seeds): the observed target_pos, target_vel and
+    target_acc are its estimates, the tip error is the tip reading minus the estimated
+    position, and under noisy_ik_target the IK aims at the estimate. Its gain is set by
+    obs_noise (the installation's sensors; under random_noise, their full level); with no
+    noise it passes the readings through. tip_error_avg keeps averaging the raw measured
+    error (the average is a filter of its own). Needs the three target features observed."""
     lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
     """A first-order low-pass on the applied lead, in the loop (cutoff in Hz; 0: none), like
     libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
@@ -262,6 +270,10 @@ class EnvConfig:
         if self.noisy_ik_target and "target_pos" not in self.obs_features:
             raise UserError("noisy_ik_target aims the IK at the observed target_pos reading: "
                             "observe target_pos")
+        if self.target_filter and not {"target_pos", "target_vel", "target_acc"} <= set(
+                self.obs_features):
+            raise UserError("target_filter estimates the target from its position, velocity and "
+                            "acceleration readings: observe target_pos, target_vel and target_acc")
         if not 0 <= self.target_delay <= 50:
             raise UserError(f"target_delay must be 0..50 steps, got {self.target_delay}")
         if self.action not in ACTIONS:

@@ -11,6 +11,7 @@ import numpy as np
 
 from .config import OBS_SCALE
 from .core import analytic_lead
+from .kalman import DEFAULT_JERK_PSD, steady_state_gain, transition, update
 
 CONTROLLERS = ("classical", "analytic", "policy")
 # Tuned on seeds.TUNE_SEEDS (never the test seeds) with `uv run studies/tau.py`.
@@ -88,28 +89,8 @@ def _numpy_actor(model):
 # --- The analytic lead as a good engineer would deploy it (issue 36) ---------------------------
 # Under noise it filters its inputs; under latency it predicts through the delay. Both read
 # what an engineer knows of the installation (the sensors' noise, the measured latency) from
-# the env's config, never the true target.
-
-# Tuned on seeds.TUNE_SEEDS at 1 cm of noise with `uv run studies/deploy.py --tune-filter`.
-DEFAULT_JERK_PSD = 1e3  # (m/s^3)^2 s: the white-jerk process noise of the target model
-
-
-def steady_state_gain(dt: float, r_std: np.ndarray, jerk_psd: float) -> np.ndarray:
-    """The steady-state Kalman gain (3 x 3) of a constant-acceleration model of one axis,
-    state (position, velocity, acceleration), measured directly with standard deviations
-    ``r_std`` (m, m/s, m/s^2): the Riccati recursion iterated to its fixed point."""
-    f = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-    # white jerk of spectral density q integrated over one step (the discrete Wiener model)
-    q = jerk_psd * np.array([[dt ** 5 / 20, dt ** 4 / 8, dt ** 3 / 6],
-                             [dt ** 4 / 8, dt ** 3 / 3, dt ** 2 / 2],
-                             [dt ** 3 / 6, dt ** 2 / 2, dt]])
-    r = np.diag(np.maximum(np.asarray(r_std, float), 1e-9) ** 2)
-    p = np.eye(3)
-    for _ in range(2000):
-        prior = f @ p @ f.T + q
-        gain = prior @ np.linalg.inv(prior + r)
-        p = (np.eye(3) - gain) @ prior
-    return gain
+# the env's config, never the true target. The filter (its tuned jerk density, its gain) is
+# panda_lead/kalman.py's, shared with the env's own (EnvConfig.target_filter).
 
 
 def make_filtered_analytic(tau: float = DEFAULT_TAU, jerk_psd: float = DEFAULT_JERK_PSD):
@@ -140,9 +121,7 @@ def make_filtered_analytic(tau: float = DEFAULT_TAU, jerk_psd: float = DEFAULT_J
         if x is None or x.shape != z.shape:
             x = z.copy()
         else:
-            f = np.array([[1.0, task.dt, task.dt ** 2 / 2], [0.0, 1.0, task.dt], [0, 0, 1.0]])
-            prior = np.einsum("ij,njk->nik", f, x)
-            x = prior + np.einsum("ij,njk->nik", state["gain"], z - prior)
+            x = update(x, z, transition(task.dt), state["gain"])
             x[first] = z[first]
         state["x"] = x
         if max_lead == 0:

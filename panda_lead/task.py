@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import trajectory
+from . import kalman, trajectory
 from .config import (
     OBS_SCALE,
     PATH_FEATURES,
@@ -87,6 +87,17 @@ class LeadTask:
         self._target_cols = next((slice(a, b) for f, a, b in self.layout if f == "target_pos"),
                                  None)
         self._target_reading = np.zeros((n, 3))
+        # The tracker's Kalman filter (EnvConfig.target_filter): each slot's estimate (N, 3
+        # rows position/velocity/acceleration, 3 axes), started from the reading at a reset
+        self._filter = None
+        if c.target_filter:
+            cols = {f: slice(a, b) for f, a, b in self.layout}
+            r_std = [c.obs_noise.get(f, 0.0) for f in ("target_pos", "target_vel", "target_acc")]
+            self._filter = ([cols[f] for f in ("target_pos", "target_vel", "target_acc")],
+                            cols.get("tip_error"), kalman.transition(self.dt),
+                            kalman.steady_state_gain(self.dt, r_std, kalman.DEFAULT_JERK_PSD))
+            self._estimate = np.zeros((n, 3, 3))
+            self._fresh = np.ones(n, dtype=bool)
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
         self._lead_alpha = (1.0 - np.exp(-2 * np.pi * c.lead_filter_hz * self.dt)
                             if c.lead_filter_hz > 0 else None)
@@ -159,6 +170,8 @@ class LeadTask:
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
         self.err_avg[ids] = 0.0
+        if self._filter is not None:
+            self._fresh[ids] = True
         if self.config.random_noise:  # (drawn only when asked: other settings' streams stay)
             for i in ids:
                 self.noise_scale[i] = self.rngs[i].uniform()
@@ -254,10 +267,27 @@ class LeadTask:
                 raw[np.ix_(ids, noisy)] += self._noise[np.ix_(ids, noisy)]
                 if errs is not None:
                     raw[np.ix_(ids, errs)] += self._reading_noise()[ids]
+        if self._filter is not None:
+            self._filtered(raw, self._all if ids is None else ids)
         if self.config.noisy_ik_target:  # the reading the IK aims at until the next one,
             rows = self._all if ids is None else ids  # of the slots observed (noise drawn)
             self._target_reading[rows] = raw[rows, self._target_cols]
         return (raw * self._inv_scale).astype(np.float32)
+
+    def _filtered(self, raw: np.ndarray, rows) -> None:
+        """Replace slots ``rows``' target readings in ``raw`` by the Kalman filter's estimates
+        (EnvConfig.target_filter), one update per reading; the tip error becomes the tip
+        reading minus the estimated position."""
+        cols, error_cols, f, gain = self._filter
+        z = np.stack([raw[rows, c] for c in cols], axis=1)  # (rows, 3, 3)
+        x = kalman.update(self._estimate[rows], z, f, gain)
+        fresh = self._fresh[rows]
+        x[fresh] = z[fresh]  # a new episode starts from its first reading
+        self._estimate[rows], self._fresh[rows] = x, False
+        for j, c in enumerate(cols):
+            raw[rows, c] = x[:, j]
+        if error_cols is not None:
+            raw[rows, error_cols] -= x[:, 0] - z[:, 0]
 
     def step(self, actions: np.ndarray, discard=None):
         """One control step of every slot -> (obs, reward, terminated, truncated, info), where

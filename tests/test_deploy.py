@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from panda_lead import controllers
-from panda_lead.config import EnvConfig
+from panda_lead.config import OBS_SCALE, EnvConfig
 from panda_lead.core import analytic_lead
 from panda_lead.task import LeadTask
 
@@ -315,3 +315,68 @@ def test_the_cameras_delay_and_the_noise_level_are_drawn_per_episode():
     assert np.array_equal(again.target_delay, task.target_delay) and np.array_equal(
         again.noise_scale, task.noise_scale)
     assert obs.dtype == np.float32 and OBS_SCALE["target_pos"] == 1.0
+
+
+# --- the env's own Kalman filter (EnvConfig.target_filter) -----------------------------------
+
+def _distances(config: EnvConfig, act, steps: int = 120, seeds=(3, 4, 5, 6)) -> np.ndarray:
+    task = LeadTask(config, len(seeds))
+    task.rngs = [np.random.default_rng(s) for s in seeds]
+    obs = task.reset(None, list(seeds))
+    out = []
+    for _ in range(steps):
+        obs, _, _, _, info = task.step(act(obs, task))
+        out.append(info["distance"])
+    return np.array(out)
+
+
+def test_env_filter_is_the_filtered_rivals_filter():
+    """The analytic lead on an env with target_filter (the IK at the noisy reading) tracks
+    as the filtered analytic lead does on the env without it: one filter, not two."""
+    noisy = EnvConfig(obs_noise=NOISE_1CM, noisy_ik_target=True)
+    rival = _distances(noisy, controllers.make_filtered_analytic())
+    in_env = _distances(replace(noisy, target_filter=True), controllers.make_analytic())
+    raw = _distances(noisy, controllers.make_analytic())
+    # (the rival filters the float32 observation, the env the float64 reading: ~1e-8 m)
+    np.testing.assert_allclose(in_env, rival, atol=1e-6)
+    assert not np.allclose(raw, rival, atol=1e-4)  # the filter changes what the arm does
+
+
+def test_env_filter_estimates_the_target_and_the_tip_error_follows():
+    """Under 1 cm of noise the observed target position is nearer the true one than the
+    reading, and the observed tip error stays the tip reading minus the observed target."""
+    config = EnvConfig(obs_noise=NOISE_1CM, target_filter=True,
+                       obs_features=("ee_pos", "target_pos", "target_vel", "target_acc",
+                                     "tip_error"))
+    plain = replace(config, target_filter=False)
+    seen = {}
+    for name, cfg in (("filtered", config), ("raw", plain)):
+        task = LeadTask(cfg, 4)
+        task.rngs = [np.random.default_rng(s) for s in range(4)]
+        obs = task.reset(None, [3, 4, 5, 6])
+        rows = []
+        for _ in range(80):
+            obs = task.step(np.zeros((4, 3)))[0]
+            cols = {f: slice(a, b) for f, a, b in task.layout}
+            unscaled = {f: obs[:, cols[f]] * OBS_SCALE[f] for f in cols}
+            rows.append((unscaled, task.core.target()[0].copy()))
+        seen[name] = rows
+    error = {name: np.mean([np.abs(o["target_pos"] - true).mean() for o, true in rows[20:]])
+             for name, rows in seen.items()}
+    assert error["filtered"] < 0.6 * error["raw"]
+    for o, _ in seen["filtered"]:
+        np.testing.assert_allclose(o["tip_error"], o["ee_pos"] - o["target_pos"], atol=2e-6)
+
+
+def test_env_filter_passes_readings_through_without_noise():
+    config = EnvConfig(target_filter=True)
+    a = _distances(config, controllers.make_analytic(), 40)
+    b = _distances(replace(config, target_filter=False), controllers.make_analytic(), 40)
+    np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_env_filter_needs_the_target_readings():
+    from panda_lead.errors import UserError
+
+    with pytest.raises(UserError, match="target_filter .* observe target_pos, target_vel"):
+        EnvConfig(target_filter=True, obs_features=("ee_pos", "target_pos"))

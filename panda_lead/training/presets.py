@@ -188,6 +188,16 @@ PRESETS.update([
                      action_delay=3, target_delay=3, random_delay=True, random_noise=True,
                      noisy_ik_target=True, w_action_change=0.1, obs_noise=DEPLOY_NOISE,
                      lead_filter_hz=10.0), lr_schedule="linear"),
+    # ... with the tracker's Kalman filter in the env (EnvConfig.target_filter): the policy
+    # observes, and the IK aims at, the same estimate of the target as the filtered analytic
+    # lead's. Noise reaches the IK's aim through the filter, not past the 10 Hz lead low-pass
+    # (deploy_real turned 1 cm of noise into 2,257 m/s^3 of jerk, the filter's 615).
+    _preset("deploy_kalman", "deploy_real + the tracker's Kalman filter on the target readings "
+            "for the policy and the IK (21-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action"), obs_delay=3,
+                     action_delay=3, target_delay=3, random_delay=True, random_noise=True,
+                     noisy_ik_target=True, target_filter=True, w_action_change=0.1,
+                     obs_noise=DEPLOY_NOISE, lead_filter_hz=10.0), lr_schedule="linear"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
