@@ -66,7 +66,7 @@ class _PathCache:
             self.pos[i] = task.trajs[i].at(times)[0]
             self.trajs[i] = task.trajs[i]
         if self.joint_path:
-            self.goal[stale] = servo_goals(task.core, self.pos, dt, self.clip)[stale]
+            self.goal[stale] = servo_goals(task.core, self.pos, dt, self.clip, slots=stale)
 
     def at(self, array: np.ndarray, task, offset_steps: float) -> np.ndarray:
         """Each slot's row at its step + offset_steps (linear between rows), (N, ...)."""
@@ -89,11 +89,17 @@ def desired_joint_path(core, pos: np.ndarray) -> np.ndarray:
     return q
 
 
-def servo_goals(core, pos: np.ndarray, dt: float, clip_to_motors: bool = False) -> np.ndarray:
-    """(N, T, 7) PD goals that make the desired joint path of ``pos`` a solution of the
-    simulated arm's dynamics (the module's formula), from MuJoCo's inverse dynamics."""
+def servo_goals(core, pos: np.ndarray, dt: float, clip_to_motors: bool = False,
+                slots=None) -> np.ndarray:
+    """(N, T, 7, 2) PD goals that make the desired joint path of ``pos`` a solution of the
+    simulated arm's dynamics (the module's formula), from MuJoCo's inverse dynamics: the path
+    and the correction added to it. ``slots``: only those arms' rows (a vector env resets one
+    slot at a time; the batched IK costs about the same for all, the inverse dynamics, one
+    mj_inverse per arm and step, do not)."""
     m = core.model
     q = desired_joint_path(core, pos)
+    if slots is not None:
+        q = q[np.asarray(slots, dtype=np.int64)]
     qd = np.gradient(q, dt, axis=1)
     qdd = np.gradient(qd, dt, axis=1)
     kp = m.actuator_gainprm[:N_JOINTS, 0]

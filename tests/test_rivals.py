@@ -140,3 +140,20 @@ def test_the_clipped_correction_asks_no_motor_for_more_than_its_force_range():
         forces[clip] = kp * corr - kv * qd
     assert (np.abs(forces[True]) <= limit + 1e-9).all()
     assert (np.abs(forces[False]) > limit).any()
+
+
+def test_a_reset_slot_gets_the_same_servo_goals_without_the_others_inverse_dynamics():
+    """The path cache recomputes only the slot that reset; its goals are those a whole-batch
+    computation gives it, and the other slot's rows are left as they were."""
+    config = EnvConfig(episode_steps=20)
+    task = LeadTask(config, 2)
+    task.reset(None, SEEDS)
+    cache = preview._PathCache(0.05, joint_path=True)
+    cache.update(task)
+    kept = cache.goal[0].copy()
+    task.reset([1], [29])
+    cache.update(task)
+    whole = preview.servo_goals(task.core, cache.pos, task.dt)
+    np.testing.assert_array_equal(cache.goal[1], whole[1])
+    np.testing.assert_array_equal(cache.goal[0], kept)
+    assert not np.allclose(cache.goal[1], whole[0])
