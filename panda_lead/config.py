@@ -30,9 +30,17 @@ OBS_FEATURES = {
 PATH_FEATURES = ("target_preview", "preview_jerk")
 
 
-def knows_path(features) -> bool:
-    """Whether observation features ``features`` include the planned path ahead."""
-    return any(f in PATH_FEATURES for f in features or ())
+def knows_path(env) -> bool:
+    """Whether a controller on env ``env`` (an EnvConfig, a sidecar's env dict, or observation
+    features alone) knows the planned path ahead: it observes a PATH_FEATURES feature, or
+    its env runs the model-based feedforward (EnvConfig.feedforward) under its lead."""
+    if isinstance(env, dict):
+        features, feedforward = env.get("obs_features"), env.get("feedforward", False)
+    elif hasattr(env, "obs_features"):
+        features, feedforward = env.obs_features, env.feedforward
+    else:
+        features, feedforward = env, False
+    return bool(feedforward) or any(f in PATH_FEATURES for f in features or ())
 
 
 # Each feature is divided by a fixed scale so that every input of the policy is of order one
@@ -202,6 +210,13 @@ class EnvConfig:
     obs_noise (the installation's sensors; under random_noise, their full level); with no
     noise it passes the readings through. tip_error_avg keeps averaging the raw measured
     error (the average is a filter of its own). Needs the three target features observed."""
+    feedforward: bool = False
+    """The model-based feedforward rival under the lead (issue 37; knows the planned path):
+    the IK aims FEEDFORWARD_TAU_IK ahead on the planned path plus the lead, and the joint goal
+    gets the servo correction of the planned joint path FEEDFORWARD_TAU ahead
+    (controllers.make_feedforward's settings, tuned on the tuning seeds). With a zero lead
+    this is the feedforward rival; a policy on it learns a residual. Needs action "lead"; not
+    with target_delay or noisy_ik_target (the plan is known, not measured)."""
     lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
     """A first-order low-pass on the applied lead, in the loop (cutoff in Hz; 0: none), like
     libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
@@ -274,6 +289,10 @@ class EnvConfig:
                 self.obs_features):
             raise UserError("target_filter estimates the target from its position, velocity and "
                             "acceleration readings: observe target_pos, target_vel and target_acc")
+        if self.feedforward and (self.action != "lead" or self.target_delay
+                                 or self.noisy_ik_target):
+            raise UserError("feedforward puts the feedforward rival under a Cartesian lead: "
+                            "it needs action 'lead', and no target_delay or noisy_ik_target")
         if not 0 <= self.target_delay <= 50:
             raise UserError(f"target_delay must be 0..50 steps, got {self.target_delay}")
         if self.action not in ACTIONS:

@@ -108,6 +108,8 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
             meta.update(model=str(path), model_sha256=side["model_sha256"])
     _check_overrides(env_config, overrides or {}, name)
     config, dropped = evaluation_config(env_config, overrides, steps)
+    if config.feedforward and not needs_model:  # a baseline on a residual model's env plays
+        config = config.replace(feedforward=False)  # without it: else it is that rival
     if name == "policy":
         act = controllers.make_policy(policy, deterministic=not stochastic)
         return Controller(name, config, meta, act, policy=policy, dropped=dropped)

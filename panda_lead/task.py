@@ -98,6 +98,18 @@ class LeadTask:
                             kalman.steady_state_gain(self.dt, r_std, kalman.DEFAULT_JERK_PSD))
             self._estimate = np.zeros((n, 3, 3))
             self._fresh = np.ones(n, dtype=bool)
+        # The feedforward rival under the lead (EnvConfig.feedforward): each slot's planned
+        # path and servo goals, recomputed for the slots that reset
+        self._feedforward = None
+        if c.feedforward:
+            from . import controllers, preview
+
+            self._feedforward = preview._PathCache(
+                max(controllers.FEEDFORWARD_TAU, controllers.FEEDFORWARD_TAU_IK),
+                joint_path=True, clip=controllers.FEEDFORWARD_CLIP)
+            self._ff_settings = (controllers.FEEDFORWARD_TAU / self.dt,
+                                 controllers.FEEDFORWARD_TAU_IK / self.dt,
+                                 controllers.FEEDFORWARD_GAIN)
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
         self._lead_alpha = (1.0 - np.exp(-2 * np.pi * c.lead_filter_hz * self.dt)
                             if c.lead_filter_hz > 0 else None)
@@ -402,13 +414,25 @@ class LeadTask:
             else:  # a new array: info["lead"] of the last step is not written over
                 self.lead = self.lead + self._lead_alpha * (applied * self.config.max_lead
                                                             - self.lead)
-            core.step(self.lead if shift is None else self.lead + shift)
+            if self._feedforward is not None:
+                core.step(*self._feedforward_step(self.lead))
+            else:
+                core.step(self.lead if shift is None else self.lead + shift)
         elif kind == "joint":
             core.step(lead=shift, joint_offset=applied * self.config.max_joint_offset)
         else:  # joint_target, no IK: -1 the lower limit, 0 the home pose, +1 the upper limit
             lo, hi = core.joint_limits
             home = core.home
             core.step(joint_goal=home + np.where(applied < 0, home - lo, hi - home) * applied)
+
+    def _feedforward_step(self, lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The core's (lead, joint offset) under EnvConfig.feedforward: the IK aimed at the
+        planned target tau_ik ahead plus the lead, the servo correction tau ahead added to
+        its goal (preview.make_feedforward's law, the lead on top)."""
+        cache, (ahead, ahead_ik, gain) = self._feedforward, self._ff_settings
+        cache.update(self)
+        aim = cache.at(cache.pos, self, ahead_ik) - cache.at(cache.pos, self, 0.0)
+        return lead + aim, gain * cache.at(cache.goal, self, ahead)[..., 1]
 
     def known_target(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(pos, vel, acc) of the target the controller knows, (N, 3) each: the true target

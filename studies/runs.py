@@ -490,9 +490,8 @@ def rank(args: Args) -> None:
         runs = load_study(folder.name)
         evals = [s["best"]["mean_error_cm"] for s in runs]
         row = (float(np.mean(evals)), folder.name, runs, evals)
-        seen = (((s.get("train_config") or {}).get("env") or {}).get("obs_features")
-                for s in runs)
-        (preview if any(knows_path(f) for f in seen) else rows).append(row)
+        envs = (((s.get("train_config") or {}).get("env") or {}) for s in runs)
+        (preview if any(knows_path(env) for env in envs) else rows).append(row)
     rows.sort(key=lambda r: r[0])
     preview.sort(key=lambda r: r[0])
     eligible = [r for r in rows if len(r[2]) >= 3]

@@ -77,7 +77,7 @@ def _knows_path_of(record: dict) -> bool:
     if "knows_path" in record:
         return bool(record["knows_path"])
     side = json.loads((ROOT / Path(record["model"]).with_suffix(".json")).read_text())
-    return knows_path(side["train_config"]["env"]["obs_features"])
+    return knows_path(side["train_config"]["env"])
 
 
 def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, str, bool]:
@@ -96,7 +96,7 @@ def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, s
         err.append(m["mean_err"])
         jerk.append(m["jerk_rms"])
     return (np.array(err), np.array(jerk), ctrl.meta["model_sha256"],
-            knows_path(ctrl.config.obs_features))
+            knows_path(ctrl.config))
 
 
 def size(args: Args) -> None:

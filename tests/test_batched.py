@@ -211,6 +211,8 @@ SINGLE_CONFIGS = {
                           noisy_ik_target=True, obs_features=OBS_FEATURES,
                           obs_noise={"ee_pos": 0.01, "target_pos": 0.01, "target_vel": 0.1}),
     "noisy_ik_target": dict(noisy_ik_target=True, obs_noise={"target_pos": 0.01}),
+    # the feedforward rival under the lead, the path ahead observed
+    "feedforward": dict(feedforward=True, obs_features=("tip_error", "target_preview")),
     # the tracker's Kalman filter in the env, its estimate observed and aimed at
     "target_filter": dict(target_filter=True, noisy_ik_target=True, random_noise=True,
                           obs_features=OBS_FEATURES,

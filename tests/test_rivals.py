@@ -157,3 +157,37 @@ def test_a_reset_slot_gets_the_same_servo_goals_without_the_others_inverse_dynam
     np.testing.assert_array_equal(cache.goal[1], whole[1])
     np.testing.assert_array_equal(cache.goal[0], kept)
     assert not np.allclose(cache.goal[1], whole[0])
+
+
+# --- the feedforward rival under a learned lead (EnvConfig.feedforward) ----------------------
+
+def test_a_zero_lead_on_the_feedforward_env_is_the_feedforward_rival():
+    """The env's feedforward with no lead tracks as the rival does (the rival's goal passes
+    through the float32 joint_target action: ~1e-7 rad), and a lead moves the arm."""
+    config = EnvConfig(episode_steps=120)
+    rival = record_many(config.replace(action="joint_target"), controllers.make_feedforward(),
+                        SEEDS)
+    in_env = record_many(config.replace(feedforward=True), controllers.classical, SEEDS)
+    leading = record_many(config.replace(feedforward=True), controllers.make_analytic(), SEEDS)
+    for a, b, c in zip(rival, in_env, leading, strict=True):
+        np.testing.assert_allclose(b.error, a.error, atol=1e-5)
+        assert np.abs(c.error - b.error).max() > 1e-3
+
+
+def test_the_feedforward_env_knows_the_path_and_its_baselines_play_without_it(monkeypatch):
+    from panda_lead import harness, models
+    from panda_lead.config import knows_path
+
+    assert knows_path(EnvConfig(feedforward=True))
+    assert knows_path({"obs_features": ["ee_pos"], "feedforward": True})  # a sidecar's env
+    assert not knows_path(EnvConfig()) and not knows_path(("ee_pos", "tip_error"))
+    with pytest.raises(Exception, match="feedforward puts the feedforward rival"):
+        EnvConfig(feedforward=True, action="joint")
+    # a baseline asked to play on a residual model's env plays without the feedforward (it
+    # would be the feedforward rival under another name); the policy keeps it
+    monkeypatch.setattr(models, "load_policy", lambda path: (
+        object(), {"feedforward": True}, {"model_sha256": "0" * 64}))
+    for name, kept in (("classical", False), ("analytic", False), ("policy", True)):
+        monkeypatch.setattr(harness.controllers, "make_policy", lambda *a, **k: None)
+        ctrl = harness.build(name, 10, Path("residual.zip"))
+        assert ctrl.config.feedforward is kept

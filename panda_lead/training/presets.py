@@ -205,6 +205,14 @@ PRESETS.update([
             "ahead observed (36-D): knows the planned path",
             env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
             lr_schedule="linear"),
+    # The learned residual on the strongest rival (issue 37): the model-based feedforward runs
+    # in the env (EnvConfig.feedforward) and the preview lead is added on top of it; with a
+    # zero lead it is the feedforward rival (2.39 cm on the test seeds; the preview lead alone
+    # 2.50). Knows the planned path.
+    _preset("preview_feedforward", "v5_err_decay_preview on top of the model-based feedforward "
+            "rival (36-D): a learned residual; knows the planned path",
+            env=dict(obs_features=OBS_15 + ("tip_error", "target_preview"), feedforward=True),
+            lr_schedule="linear"),
     # The same knowledge, encoded as what the policy cannot read from the present target:
     # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
     # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.
