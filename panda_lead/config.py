@@ -24,6 +24,7 @@ OBS_FEATURES = {
     "tip_error_avg": 3,
     "target_preview": 18,  # PREVIEW_POINTS future target offsets (EnvConfig.preview_times)
     "preview_jerk": 18,  # the same points as what the Taylor guess misses (see OBS_SCALE)
+    "installation": 4,  # what the installation's engineer knows: latencies and noise (OBS_SCALE)
 }
 # The features that show the planned path ahead: a model observing one "knows the planned path"
 # (issue 37), a labelled variant never ranked with the causal ones.
@@ -70,6 +71,11 @@ OBS_SCALE = {
     # is of one order (0.02-0.3 s, 128 training episodes of 2 s: median 15-18 m/s^3, 95th
     # percentile 185-290, 99.9th 310-640), hence a 250 m/s^3 scale.
     "preview_jerk": 250.0,
+    # What an engineer knows of the installation and hands every rival (the predicting lead
+    # reads the latency, the Kalman filter the sensors' noise): the slot's obs_delay,
+    # action_delay and target_delay (control steps) and its target reading's noise std (cm),
+    # as drawn for the episode. Known, not measured: never noisy. 0-3 steps / 0-2 cm at 3.
+    "installation": 3.0,
 }
 PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
 # The observation layouts of the reference ladder (the presets build on them).
@@ -266,6 +272,9 @@ class EnvConfig:
                 raise UserError(f"obs_noise: unknown feature {f!r}" + did_you_mean(f, OBS_FEATURES))
             if not (isinstance(std, int | float) and math.isfinite(std) and std >= 0):
                 raise UserError(f"obs_noise[{f!r}] must be a finite std >= 0, got {std!r}")
+        if "installation" in self.obs_noise:
+            raise UserError("obs_noise: the installation feature is known, not measured: it "
+                            "takes no noise")
         set_("obs_noise", {f: float(v) for f, v in self.obs_noise.items()})
         set_("preview_times", check_preview_times(self.preview_times))
         set_("ik", IKConfig.from_dict(self.ik))

@@ -81,6 +81,11 @@ class LeadTask:
         self.action_delay = np.full(n, c.action_delay)
         self.target_delay = np.full(n, c.target_delay)  # the target camera's, per slot
         self.noise_scale = np.ones(n)  # each slot's episode's share of obs_noise (random_noise)
+        # the installation feature: each slot's latencies and target noise (config.OBS_SCALE)
+        self._installation = np.zeros((n, 4))
+        self._installation_cols = next((slice(a, b) for f, a, b in self.layout
+                                        if f == "installation"), None)
+        self._set_installation(self._all)
         # Peak-speed cap of drawn (training) trajectories; a curriculum raises it as it goes.
         self.speed_cap = c.max_peak_speed
         # noisy_ik_target: the observed target_pos reading's columns, and the latest reading
@@ -187,19 +192,34 @@ class LeadTask:
         if self.config.random_noise:  # (drawn only when asked: other settings' streams stay)
             for i in ids:
                 self.noise_scale[i] = self.rngs[i].uniform()
+        self._set_installation(ids)
         obs = self.observe(ids)
         if self.config.random_delay and self.config.target_delay:
             for i in ids:
                 self.target_delay[i] = self.rngs[i].integers(self.config.target_delay + 1)
+        if self._delayed and self.config.random_delay:
+            for i in ids:
+                self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
+                self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
+        if self._installation_cols is not None and self.config.random_delay:
+            # (the delays are drawn after the first observation, whose other columns keep
+            # their streams; its installation columns get this episode's)
+            self._set_installation(ids)
+            cols = self._installation_cols
+            obs[ids, cols] = (self._installation[ids] * self._inv_scale[cols]).astype(np.float32)
         if self._delayed:
-            if self.config.random_delay:
-                for i in ids:
-                    self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
-                    self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
             self._act_hist[ids] = 0.0  # before the episode the lead was zero (classical)
             self._obs_hist[ids] = obs[ids, None, :]  # before it, the arm stood still
             obs = self._obs_hist[self._all, self.obs_delay]
         return self._stacked(obs, ids)
+
+    def _set_installation(self, ids) -> None:
+        """Slots ``ids``' installation rows: their delays and their target reading's noise."""
+        c, inst = self.config, self._installation
+        inst[ids, 0], inst[ids, 1] = self.obs_delay[ids], self.action_delay[ids]
+        inst[ids, 2] = self.target_delay[ids]
+        noise_cm = 100.0 * c.obs_noise.get("target_pos", 0.0)
+        inst[ids, 3] = noise_cm * (self.noise_scale[ids] if c.random_noise else 1.0)
 
     def _stacked(self, obs: np.ndarray, reset_ids=None) -> np.ndarray:
         """The observation the policy gets: the last obs_stack observations, newest first; a
@@ -259,6 +279,8 @@ class LeadTask:
             source["tip_error"] = core.tip_pos - pos
         if self._avg_observed:
             source["tip_error_avg"] = self.err_avg
+        if self._installation_cols is not None:
+            source["installation"] = self._installation
         if self._preview_observed:
             k = np.minimum(np.maximum(core.step_count - self.target_delay, 0),
                            self.config.episode_steps)

@@ -38,7 +38,7 @@ from .task import LeadTask
 # step_one's order of the observation features (its tuple of their values)
 _SOURCES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "joint_pos",
             "joint_vel", "prev_action", "tip_error", "tip_error_avg", "target_preview",
-            "preview_jerk")
+            "preview_jerk", "installation")
 
 
 class LeadTaskOne(LeadTask):
@@ -201,7 +201,9 @@ class LeadTaskOne(LeadTask):
                   core.qvel[0].tolist() if joints else None,
                   values, (dx, dy, dz), avg if self._avg_observed else None,
                   self._offset_rows[k] if self._offset_rows is not None else None,
-                  self._jerk_rows[k] if self._jerk_rows is not None else None)
+                  self._jerk_rows[k] if self._jerk_rows is not None else None,
+                  self._installation[0].tolist() if self._installation_cols is not None
+                  else None)
         raw = chain.from_iterable(self._pick(source))
         if noise is not None:  # observe()'s order: each column's own draw, then the readings'
             raw = list(raw)

@@ -211,6 +211,12 @@ SINGLE_CONFIGS = {
                           noisy_ik_target=True, obs_features=OBS_FEATURES,
                           obs_noise={"ee_pos": 0.01, "target_pos": 0.01, "target_vel": 0.1}),
     "noisy_ik_target": dict(noisy_ik_target=True, obs_noise={"target_pos": 0.01}),
+    # the installation's known latencies and noise observed, drawn per episode
+    "installation": dict(obs_features=("tip_error", "prev_action", "installation"),
+                         obs_delay=2, action_delay=1, target_delay=2, random_delay=True,
+                         random_noise=True, obs_noise={"target_pos": 0.01}),
+    "installation_lean": dict(obs_features=("tip_error", "installation"), random_noise=True,
+                              obs_noise={"target_pos": 0.01, "ee_pos": 0.005}),
     # the feedforward rival under the lead, the path ahead observed
     "feedforward": dict(feedforward=True, obs_features=("tip_error", "target_preview")),
     # the tracker's Kalman filter in the env, its estimate observed and aimed at
@@ -248,7 +254,7 @@ def test_the_fast_single_task_is_the_reference_bit_for_bit(name):
     config = EnvConfig(**{"episode_steps": 25, **SINGLE_CONFIGS[name]})
     fast, ref = LeadTaskOne(config, 1, nthread=1), LeadTask(config, 1, nthread=1)
     assert fast._lean_lead == (name in ("default", "weights", "stack", "readings", "ragged",
-                                         "iters"))
+                                         "iters", "installation_lean"))
     rng = np.random.default_rng(4)
     ends = 0
     for episode in range(3):

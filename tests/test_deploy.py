@@ -380,3 +380,32 @@ def test_env_filter_needs_the_target_readings():
 
     with pytest.raises(UserError, match="target_filter .* observe target_pos, target_vel"):
         EnvConfig(target_filter=True, obs_features=("ee_pos", "target_pos"))
+
+
+# --- what the installation's engineer knows, observed (the installation feature) -------------
+
+def test_the_installation_feature_shows_each_episodes_drawn_latency_and_noise():
+    """From an episode's first observation on, each slot observes the delays and the target
+    noise level drawn for it (what the predicting rival and the filter are given)."""
+    config = EnvConfig(obs_features=("tip_error", "installation"), obs_delay=3, action_delay=2,
+                       target_delay=3, random_delay=True, random_noise=True,
+                       obs_noise={"target_pos": 0.01})
+    task = LeadTask(config, 8)
+    task.rngs = [np.random.default_rng(s) for s in range(8)]
+    cols = {f: slice(a, b) for f, a, b in task.layout}["installation"]
+    for episode in range(3):
+        obs = task.reset() if episode == 0 else task.reset(list(range(8)))
+        for _ in range(4):
+            want = np.stack([task.obs_delay, task.action_delay, task.target_delay,
+                             100 * 0.01 * task.noise_scale], axis=1)
+            np.testing.assert_allclose(obs[:, cols] * OBS_SCALE["installation"], want,
+                                       atol=1e-6)
+            obs = task.step(np.zeros((8, 3)))[0]
+    assert len(set(task.obs_delay.tolist())) > 1  # drawn per slot, not one for all
+
+
+def test_the_installation_takes_no_noise():
+    from panda_lead.errors import UserError
+
+    with pytest.raises(UserError, match="installation feature is known, not measured"):
+        EnvConfig(obs_features=("installation",), obs_noise={"installation": 0.1})

@@ -198,6 +198,18 @@ PRESETS.update([
                      action_delay=3, target_delay=3, random_delay=True, random_noise=True,
                      noisy_ik_target=True, target_filter=True, w_action_change=0.1,
                      obs_noise=DEPLOY_NOISE, lead_filter_hz=10.0), lr_schedule="linear"),
+    # ... observing what the installation's engineer knows and hands every rival (the
+    # predicting lead reads the latency, the filter the noise): the episode's drawn delays and
+    # noise level (the installation feature). A lead trained over every delay and noise level
+    # without knowing which one it is in must hedge across them (deploy_real: 3.8 cm on the
+    # test seeds, the headline 1.8); knowing them it need not.
+    _preset("deploy_known", "deploy_kalman + the installation's latencies and noise level "
+            "observed (25-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
+                     obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
+                     random_noise=True, noisy_ik_target=True, target_filter=True,
+                     w_action_change=0.1, obs_noise=DEPLOY_NOISE, lead_filter_hz=10.0),
+            lr_schedule="linear"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
