@@ -204,6 +204,11 @@ class EnvConfig:
     random_noise: bool = False
     """Scale each episode's observation noise (obs_noise, every channel alike) by a factor drawn
     uniformly from [0, 1]: training over every noise level up to obs_noise's, from none."""
+    nominal_share: float = field(default=0.0, metadata={"range": (0.0, 1.0)})
+    """Under random_delay / random_noise: the share of episodes drawn as the nominal
+    installation, no delay and no noise. Drawn uniformly, three delays of 0-3 steps are all
+    zero in 1 episode of 64: the condition the arm is most often run in is the one training
+    sees least."""
     noisy_ik_target: bool = False
     """The IK aims at the target as measured: the latest observation's (noisy) target_pos
     reading, not the true target, so that observation noise reaches the classical controller
@@ -298,6 +303,9 @@ class EnvConfig:
                 self.obs_features):
             raise UserError("target_filter estimates the target from its position, velocity and "
                             "acceleration readings: observe target_pos, target_vel and target_acc")
+        if self.nominal_share and not (self.random_delay or self.random_noise):
+            raise UserError("nominal_share is the share of randomised episodes drawn nominal: "
+                            "it needs random_delay or random_noise")
         if self.feedforward and (self.action != "lead" or self.target_delay
                                  or self.noisy_ik_target):
             raise UserError("feedforward puts the feedforward rival under a Cartesian lead: "

@@ -8,6 +8,8 @@ measured directly; steady state, so the filter is a fixed 3 x 3 gain per noise l
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 # Tuned on seeds.TUNE_SEEDS at 1 cm of noise with `uv run studies/deploy.py --tune-filter`.
@@ -37,8 +39,31 @@ def steady_state_gain(dt: float, r_std: np.ndarray, jerk_psd: float) -> np.ndarr
     return gain
 
 
+# Under EnvConfig.random_noise each episode's noise is a share s in [0, 1] of obs_noise, and the
+# filter is the one for that level (the installation knows its sensors): the gains of
+# GAIN_LEVELS + 1 evenly spaced shares, each episode taking the nearest (~50 ms each, once).
+GAIN_LEVELS = 20
+
+
+def gains_by_share(dt: float, r_std, jerk_psd: float) -> np.ndarray:
+    """(GAIN_LEVELS + 1, 3, 3) steady-state gains for noise r_std times 0, 1/L, ..., 1."""
+    return _gains_by_share(float(dt), tuple(float(v) for v in r_std), float(jerk_psd))
+
+
+@functools.lru_cache(maxsize=8)
+def _gains_by_share(dt: float, r_std: tuple, jerk_psd: float) -> np.ndarray:
+    shares = np.linspace(0.0, 1.0, GAIN_LEVELS + 1)
+    table = np.stack([steady_state_gain(dt, s * np.asarray(r_std), jerk_psd) for s in shares])
+    table.setflags(write=False)
+    return table
+
+
 def update(x: np.ndarray, z: np.ndarray, f: np.ndarray, gain: np.ndarray) -> np.ndarray:
     """One predict-and-correct step of (N, 3, axes) estimates ``x`` (rows: position, velocity,
-    acceleration) with readings ``z`` of the same shape."""
+    acceleration) with readings ``z`` of the same shape; ``gain`` one (3, 3) for every row or
+    an (N, 3, 3) of each row's own."""
     prior = np.einsum("ij,njk->nik", f, x)
+    if gain.ndim == 3:
+        return prior + np.einsum("nij,njk->nik", gain, z - prior)
     return prior + np.einsum("ij,njk->nik", gain, z - prior)
+

@@ -98,11 +98,15 @@ class LeadTask:
         if c.target_filter:
             cols = {f: slice(a, b) for f, a, b in self.layout}
             r_std = [c.obs_noise.get(f, 0.0) for f in ("target_pos", "target_vel", "target_acc")]
+            gain = kalman.steady_state_gain(self.dt, r_std, kalman.DEFAULT_JERK_PSD)
             self._filter = ([cols[f] for f in ("target_pos", "target_vel", "target_acc")],
-                            cols.get("tip_error"), kalman.transition(self.dt),
-                            kalman.steady_state_gain(self.dt, r_std, kalman.DEFAULT_JERK_PSD))
+                            cols.get("tip_error"), kalman.transition(self.dt), gain)
             self._estimate = np.zeros((n, 3, 3))
             self._fresh = np.ones(n, dtype=bool)
+            if c.random_noise:  # each episode's filter is the one for its noise level
+                self._gain_table = kalman.gains_by_share(self.dt, r_std,
+                                                         kalman.DEFAULT_JERK_PSD)
+                self._filter = (*self._filter[:3], np.broadcast_to(gain, (n, 3, 3)).copy())
         # The feedforward rival under the lead (EnvConfig.feedforward): each slot's planned
         # path and servo goals, recomputed for the slots that reset
         self._feedforward = None
@@ -187,11 +191,17 @@ class LeadTask:
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
         self.err_avg[ids] = 0.0
-        if self._filter is not None:
-            self._fresh[ids] = True
+        nominal = self._draw_nominal(ids)
         if self.config.random_noise:  # (drawn only when asked: other settings' streams stay)
             for i in ids:
                 self.noise_scale[i] = self.rngs[i].uniform()
+            self.noise_scale[nominal] = 0.0
+        if self._filter is not None:
+            self._fresh[ids] = True
+            if self.config.random_noise:  # the filter of each episode's noise level
+                levels = len(self._gain_table) - 1
+                self._filter[3][ids] = self._gain_table[
+                    np.rint(self.noise_scale[ids] * levels).astype(np.int64)]
         self._set_installation(ids)
         obs = self.observe(ids)
         if self.config.random_delay and self.config.target_delay:
@@ -201,6 +211,9 @@ class LeadTask:
             for i in ids:
                 self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
                 self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
+        if len(nominal):  # the nominal installation: no delay of any kind
+            self.obs_delay[nominal] = self.action_delay[nominal] = 0
+            self.target_delay[nominal] = 0
         if self._installation_cols is not None and self.config.random_delay:
             # (the delays are drawn after the first observation, whose other columns keep
             # their streams; its installation columns get this episode's)
@@ -212,6 +225,14 @@ class LeadTask:
             self._obs_hist[ids] = obs[ids, None, :]  # before it, the arm stood still
             obs = self._obs_hist[self._all, self.obs_delay]
         return self._stacked(obs, ids)
+
+    def _draw_nominal(self, ids) -> np.ndarray:
+        """Of slots ``ids``, those whose new episode is the nominal installation (no delay, no
+        noise; EnvConfig.nominal_share), drawn from each slot's stream only when asked."""
+        share = self.config.nominal_share
+        if not share:
+            return np.zeros(0, dtype=np.int64)
+        return np.array([i for i in ids if self.rngs[i].uniform() < share], dtype=np.int64)
 
     def _set_installation(self, ids) -> None:
         """Slots ``ids``' installation rows: their delays and their target reading's noise."""
@@ -314,7 +335,7 @@ class LeadTask:
         reading minus the estimated position."""
         cols, error_cols, f, gain = self._filter
         z = np.stack([raw[rows, c] for c in cols], axis=1)  # (rows, 3, 3)
-        x = kalman.update(self._estimate[rows], z, f, gain)
+        x = kalman.update(self._estimate[rows], z, f, gain[rows] if gain.ndim == 3 else gain)
         fresh = self._fresh[rows]
         x[fresh] = z[fresh]  # a new episode starts from its first reading
         self._estimate[rows], self._fresh[rows] = x, False

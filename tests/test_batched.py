@@ -212,9 +212,11 @@ SINGLE_CONFIGS = {
                           obs_noise={"ee_pos": 0.01, "target_pos": 0.01, "target_vel": 0.1}),
     "noisy_ik_target": dict(noisy_ik_target=True, obs_noise={"target_pos": 0.01}),
     # the installation's known latencies and noise observed, drawn per episode
-    "installation": dict(obs_features=("tip_error", "prev_action", "installation"),
+    "installation": dict(obs_features=("tip_error", "prev_action", "installation",
+                                       "target_pos", "target_vel", "target_acc"),
                          obs_delay=2, action_delay=1, target_delay=2, random_delay=True,
-                         random_noise=True, obs_noise={"target_pos": 0.01}),
+                         random_noise=True, nominal_share=0.5, target_filter=True,
+                         obs_noise={"target_pos": 0.01, "target_vel": 0.1, "target_acc": 1.0}),
     "installation_lean": dict(obs_features=("tip_error", "installation"), random_noise=True,
                               obs_noise={"target_pos": 0.01, "ee_pos": 0.005}),
     # the feedforward rival under the lead, the path ahead observed

@@ -409,3 +409,34 @@ def test_the_installation_takes_no_noise():
 
     with pytest.raises(UserError, match="installation feature is known, not measured"):
         EnvConfig(obs_features=("installation",), obs_noise={"installation": 0.1})
+
+
+def test_nominal_episodes_have_no_delay_no_noise_and_a_pass_through_filter():
+    """nominal_share: about that share of episodes has every delay and the noise at zero (and
+    the installation feature says so); the filter's gain follows each episode's noise level:
+    the identity for a nominal one, the config's full-noise gain at a share of 1."""
+    from panda_lead import kalman
+
+    noise = {"target_pos": 0.01, "target_vel": 0.1, "target_acc": 1.0}
+    config = EnvConfig(obs_features=("target_pos", "target_vel", "target_acc", "installation"),
+                       obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
+                       random_noise=True, nominal_share=0.5, target_filter=True, obs_noise=noise)
+    task = LeadTask(config, 64)
+    task.rngs = [np.random.default_rng(s) for s in range(64)]
+    task.reset()
+    quiet = ((task.obs_delay == 0) & (task.action_delay == 0) & (task.target_delay == 0)
+             & (task.noise_scale == 0))
+    assert 20 <= quiet.sum() <= 44  # ~half of 64, where 1 in 64 would be chance
+    gains = task._filter[3]
+    np.testing.assert_allclose(gains[quiet], np.eye(3)[None].repeat(quiet.sum(), 0), atol=1e-6)
+    full = kalman.steady_state_gain(task.dt, [0.01, 0.1, 1.0], kalman.DEFAULT_JERK_PSD)
+    table = kalman.gains_by_share(task.dt, [0.01, 0.1, 1.0], kalman.DEFAULT_JERK_PSD)
+    np.testing.assert_array_equal(table[-1], full)
+    loud = np.flatnonzero(task.noise_scale > 0.975)
+    for i in loud:
+        np.testing.assert_array_equal(gains[i], full)
+    cols = {f: slice(a, b) for f, a, b in task.layout}["installation"]
+    inst = task.observe()[:, cols] * OBS_SCALE["installation"]
+    assert np.allclose(inst[quiet], 0.0)
+    with pytest.raises(Exception, match="nominal_share .* needs random_delay or random_noise"):
+        EnvConfig(nominal_share=0.5)
