@@ -216,6 +216,9 @@ def table_steps() -> list[Step]:
     # issue 36, a lead a real arm could run: the study, and the deployability table
     steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
               _compare(DEPLOY_STUDY, HS)]
+    # the pilots toward one lead with no trade-off (docs/deploy.md): the best one's seeds and
+    # its step from deploy_real, paired by training seed
+    steps += [_report("deploy_nominal_5m"), _compare("deploy_nominal_5m", "deploy_real_5m")]
     deploy_models = [f"{a}{H}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip", f"{a}{DEPLOY}.zip"]
     steps.append(Step(("results/studies/deploy/deploy.md", "results/studies/deploy/deploy.png"),
                       ("studies/deploy.py", "--models", *deploy_models, "--seeds", "0-99",
