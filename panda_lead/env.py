@@ -80,6 +80,7 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     | tip_error_avg  | 3    | its running average, clipped per axis (m; see below) | 0.01       |
     | target_preview | 18   | p(t + h) - p(t), h in preview_times (m; see below)   | 0.1        |
     | preview_jerk   | 18   | 6 (p(t + h) - p - v h - a h^2/2) / h^3 (m/s^3)       | 250        |
+    | installation   | 4    | the episode's 3 delays (steps), target noise (cm)    | 3          |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
     gives the index ranges. ``tip_error_avg`` moves each step ``dt/error_avg_time`` of the way
@@ -88,8 +89,11 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     results): the target's future positions relative to now, from the analytic trajectory.
     ``preview_jerk`` knows the same path, as what the present target's Taylor guess misses per
     look-ahead (the path's mean jerk over the next h seconds).
+    ``installation`` is what an engineer knows of the installation (the episode's obs, action
+    and target delays and its target reading's noise std), never noisy.
     ``obs_noise`` adds Gaussian noise (std per feature, in the feature's physical unit) to what
-    the policy sees; the IK target is always the true target.
+    the policy sees; the IK aims at the true target unless ``noisy_ik_target`` (the reading) or
+    ``target_filter`` (the tracker's Kalman estimate of it) says otherwise (docs/env.md).
 
     ## Reward
     A sum of weighted terms, each reported in ``info["reward_terms"]`` (they add up to the
