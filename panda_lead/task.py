@@ -186,6 +186,8 @@ class LeadTask:
         self._reachable[ids] = reachable(core.target_pos[ids])
         if self._preview_observed:
             self._set_preview(ids)
+        if self._feedforward is not None:  # the new episodes' planned paths, once per reset
+            self._feedforward.update(self)
         self.prev_action[ids] = 0.0
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
@@ -473,7 +475,6 @@ class LeadTask:
         planned target tau_ik ahead plus the lead, the servo correction tau ahead added to
         its goal (preview.make_feedforward's law, the lead on top)."""
         cache, (ahead, ahead_ik, gain) = self._feedforward, self._ff_settings
-        cache.update(self)
         aim = cache.at(cache.pos, self, ahead_ik) - cache.at(cache.pos, self, 0.0)
         return lead + aim, gain * cache.at(cache.goal, self, ahead)[..., 1]
 
