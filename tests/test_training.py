@@ -313,6 +313,29 @@ def test_a_joint_residual_run_trains_and_evaluates_against_both_baselines(tmp_pa
     assert policy.action_space.shape == (7,) and env_config["action"] == "joint"
 
 
+def test_a_residual_run_compares_with_the_plain_baselines_and_its_rival(tmp_path, capsys):
+    """On a feedforward env a zero lead IS the feedforward rival: the run's classical and
+    analytic lines play without it (as eval.py's baselines do), the rival is its own line."""
+    from panda_lead.training import train
+
+    capsys.readouterr()
+    train(parse_args(["--preset", "preview_feedforward", "--timesteps", "128", "--eval-freq",
+                      "128", "--runs-dir", str(tmp_path), *TINY]))
+    stdout = capsys.readouterr().out
+    from panda_lead.controllers import classical, make_analytic
+    from panda_lead.training import evaluate, get_preset
+
+    env = get_preset("preview_feedforward").env
+    plain = env.replace(feedforward=False)
+    expected = {"classical": evaluate(classical, plain, 500)["mean_error_cm"],
+                "analytic": evaluate(make_analytic(), plain, 500)["mean_error_cm"],
+                "feedforward": evaluate(classical, env, 500)["mean_error_cm"]}
+    assert expected["feedforward"] < expected["analytic"] < expected["classical"]
+    (line,) = [x for x in stdout.splitlines() if x.startswith("step ")]
+    for name, cm in expected.items():
+        assert f"{name} {cm:.2f} cm" in line
+
+
 def test_a_cuda_device_that_is_not_there_is_a_clear_error():
     import torch
 

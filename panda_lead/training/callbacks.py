@@ -91,10 +91,16 @@ class TrackingEval(BaseCallback):
         if not config.eval_freq:
             return
         # The baselines are Cartesian leads (zero, analytic): a run with another action is
-        # compared with them on the same task with the lead action.
-        as_lead = config.env.replace(action="lead")
+        # compared with them on the same task with the lead action. On a residual's env
+        # (feedforward) they play without the feedforward, as eval.py's do (a zero lead
+        # there IS the feedforward rival, and the analytic lead on top of it leads twice);
+        # the rival the residual starts from is a third line.
+        as_lead = config.env.replace(action="lead", feedforward=False)
         self.baselines = {"classical": evaluate(classical, as_lead, config.eval_steps),
                           "analytic": evaluate(make_analytic(), as_lead, config.eval_steps)}
+        if config.env.feedforward:
+            self.baselines["feedforward"] = evaluate(
+                classical, config.env.replace(action="lead"), config.eval_steps)
 
     def _on_step(self) -> bool:
         config = self.config
@@ -131,8 +137,15 @@ class TrackingEval(BaseCallback):
         say(f"step {self.num_timesteps:>10,}  error {res['mean_error_cm']:5.2f} cm  "
             f"in 5 cm band {res['in_band_pct']:5.1f}%   (classical {classical_cm:.2f} cm / "
             f"{c['in_band_pct']:.1f}%, analytic {a['mean_error_cm']:.2f} cm / "
-            f"{a['in_band_pct']:.1f}%)" + ("  best" if new_best else ""))
+            f"{a['in_band_pct']:.1f}%" + _rival_note(self.baselines) + ")"
+            + ("  best" if new_best else ""))
         return res
+
+
+def _rival_note(baselines: dict) -> str:
+    """The feedforward rival a residual run starts from, where there is one."""
+    f = baselines.get("feedforward")
+    return "" if f is None else f", feedforward {f['mean_error_cm']:.2f} cm / {f['in_band_pct']:.1f}%"
 
 
 class AtomicCheckpoint(CheckpointCallback):
@@ -340,11 +353,11 @@ def make_logger(folder: Path):
 
     folder.mkdir(parents=True, exist_ok=True)
     tb = TensorBoardOutputFormat(str(folder))
-    # One chart with the policy and both baselines (TensorBoard's "Custom Scalars" tab).
+    # One chart with the policy and its baselines (TensorBoard's "Custom Scalars" tab; the
+    # feedforward line exists only in a residual's run).
+    lines = [f"eval{who}/{{}}" for who in ("", "_classical", "_analytic", "_feedforward")]
     tb.writer.add_custom_scalars({"tracking": {
-        "mean error (cm)": ["Multiline", ["eval/mean_error_cm", "eval_classical/mean_error_cm",
-                                          "eval_analytic/mean_error_cm"]],
-        "time in 5 cm band (%)": ["Multiline", ["eval/in_band_pct", "eval_classical/in_band_pct",
-                                                "eval_analytic/in_band_pct"]]}})
+        "mean error (cm)": ["Multiline", [k.format("mean_error_cm") for k in lines]],
+        "time in 5 cm band (%)": ["Multiline", [k.format("in_band_pct") for k in lines]]}})
     return Logger(str(folder), [tb, _AppendingCSV(folder / "progress.csv")])
 

@@ -267,7 +267,9 @@ def _summary(run_dir: Path, tracker: TrackingEval, steps: int, final: Path, cloc
         base = tracker.baselines
         lines.append(f"best evaluation error {tracker.best:.2f} cm at {tracker.best_step:,} steps "
                      f"(classical {base['classical']['mean_error_cm']:.2f} cm, analytic "
-                     f"{base['analytic']['mean_error_cm']:.2f} cm): {best}")
+                     f"{base['analytic']['mean_error_cm']:.2f} cm"
+                     + (f", feedforward {base['feedforward']['mean_error_cm']:.2f} cm"
+                        if "feedforward" in base else "") + f"): {best}")
     else:
         lines.append(f"no evaluation ran (--eval-freq 0); final model: {final}")
     prefix = run_dir.name  # unique to the run: a second run's eval set is not refused
