@@ -25,6 +25,10 @@ The conditions (docs/deploy.md says what each means physically):
   10 s per second, the target's acceleration 100 s per second squared; the tip error a learned
   lead observes is the tip reading minus the target reading, noise and all (sqrt(2) s, the
   same draws as its ee_pos and target_pos), and the IK aims at the target reading.
+- target noise s cm (targetnoise1, targetnoise2; not in the default rows): the same noise on
+  the target's readings only, the arm's state exact: a camera sees the target while the tip
+  comes from the joint encoders through the kinematics, as on a real Panda. It separates the
+  jerk that the target's noise causes from the jerk that a noisy tip reading causes.
 The rivals a good engineer would field: under noise the analytic lead with a Kalman filter on
 the target's position, velocity and acceleration (controllers.make_filtered_analytic, tuned on
 the tuning seeds: --tune-filter); under latency the analytic lead that predicts through the
@@ -46,11 +50,14 @@ from robustness import condition as robustness_condition  # noqa: E402
 
 from panda_lead.errors import UserError, exit_on_user_error  # noqa: E402
 
-CONDITIONS = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2")
+CONDITIONS = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2",
+              "targetnoise1", "targetnoise2")
+DEFAULT_CONDITIONS = CONDITIONS[:7]
 LABELS = {"none": "no delay, no noise", "delay1": "latency 1 step (10 ms)",
           "delay3": "latency 3 steps (30 ms)", "camera1": "target camera 1 step (10 ms)",
           "camera3": "target camera 3 steps (30 ms)", "noise1": "noise 1 cm",
-          "noise2": "noise 2 cm"}
+          "noise2": "noise 2 cm", "targetnoise1": "target noise 1 cm (arm exact)",
+          "targetnoise2": "target noise 2 cm (arm exact)"}
 SKIP_S = 0.5  # the swing from home, as the settled error leaves it out
 
 
@@ -60,8 +67,9 @@ class Args:
     """Archived models to evaluate beside the classical and analytic controllers."""
     seeds: str = "0-499"
     """Test seeds."""
-    conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
-    """Rows, from: none delay1 delay3 camera1 camera3 noise1 noise2."""
+    conditions: list[str] = field(default_factory=lambda: list(DEFAULT_CONDITIONS))
+    """Rows, from: none delay1 delay3 camera1 camera3 noise1 noise2 targetnoise1
+    targetnoise2."""
     out: Path = Path("results/studies/deploy")
     """Folder for deploy.md and deploy.png."""
     bootstrap: int = 10000
@@ -84,8 +92,11 @@ def overrides(cond: str) -> dict:
         return robustness_condition("delay", float(cond[5:]))
     if cond.startswith("camera"):  # the target seen k steps late by every controller's IK too
         return {"target_delay": int(cond[6:]), "random_delay": False}
-    level = float(cond[5:])
+    level = float(cond.removeprefix("target")[5:])
     settings = robustness_condition("noise", level)  # (the tip error: the two readings')
+    if cond.startswith("target"):  # the arm's readings exact: the encoders'
+        settings["obs_noise"] = {k: v for k, v in settings["obs_noise"].items()
+                                 if k.startswith("target")}
     settings["noisy_ik_target"] = True  # the IK aims at the measured target too
     return settings
 
@@ -99,7 +110,7 @@ def controllers_for(cond: str, models: list[Path], steps: int) -> dict:
     out = {"Classical": harness.build("classical", steps, None, settings),
            "Analytic": harness.build("analytic", steps, None, settings)}
     analytic = out["Analytic"]
-    if cond.startswith("noise"):
+    if "noise" in cond:
         out["Analytic+filter"] = harness.Controller(
             "analytic+filter", analytic.config,
             {**analytic.meta, "controller": "analytic+filter",
@@ -213,7 +224,7 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
     from panda_lead.metrics import diff_text, row_diff
 
     models = f" --models {' '.join(map(str, args.models))}" if args.models else ""
-    extra = "" if args.conditions == list(CONDITIONS) else \
+    extra = "" if args.conditions == list(DEFAULT_CONDITIONS) else \
         f" --conditions {' '.join(args.conditions)}"
     lines = [f"`uv run studies/deploy.py{models} --seeds {args.seeds}{extra}` "
              f"({len(seeds)} test seeds, {time.strftime('%Y-%m-%d')}, commit {_commit()}).",
@@ -268,7 +279,8 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(10, 6.5), constrained_layout=True)
     names = list(dict.fromkeys(r["name"] for r in rows))
     colours = colours_for(names)  # the baselines keep the repo's colours
-    markers = dict(zip(CONDITIONS, ("o", "s", "D", "<", ">", "^", "v"), strict=True))
+    markers = dict(zip(CONDITIONS, ("o", "s", "D", "<", ">", "^", "v", "P", "X"),
+                       strict=True))
     for name in names:
         pts = [r for r in rows if r["name"] == name]
         x = [r["jerk"].mean_b for r in pts]

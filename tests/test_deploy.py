@@ -137,6 +137,28 @@ def test_noise_condition_reaches_the_tip_error():
                                atol=1e-6)  # float32 observations
 
 
+def test_target_noise_leaves_the_arm_readings_exact():
+    """targetnoise1: the target's readings carry the 1 cm condition's noise, the tip reading
+    (the encoders' kinematics) none, so the tip error's noise is the target's alone."""
+    from panda_lead.config import OBS_15, OBS_SCALE
+
+    deploy = _deploy_module()
+    config = EnvConfig(obs_features=OBS_15 + ("tip_error",)).merged(
+        deploy.overrides("targetnoise1"))
+    assert config.noisy_ik_target
+    task = LeadTask(config, 64)
+    task.rngs = [np.random.default_rng(s) for s in range(64)]
+    obs = task.reset(None, list(range(64))).astype(np.float64)
+    cols = {f: slice(a, b) for f, a, b in task.layout}
+    seen = {f: obs[:, cols[f]] * OBS_SCALE[f] for f in ("tip_error", "ee_pos", "target_pos")}
+    pos, _, _ = task.core.target()
+    np.testing.assert_allclose(seen["ee_pos"], task.core.tip_pos, atol=1e-6)
+    assert np.std(seen["target_pos"] - pos) == pytest.approx(0.01, rel=0.15)
+    assert np.std(seen["tip_error"] - (task.core.tip_pos - pos)) == pytest.approx(0.01, rel=0.15)
+    ctrls = deploy.controllers_for("targetnoise1", [], 10)
+    assert "Analytic+filter" in ctrls  # the rival a camera's noise calls for
+
+
 def test_unobserved_readings_still_carry_their_noise_into_the_tip_error():
     """A lead that observes the tip error but neither position still sees the readings' noise
     in it (hidden channels: std sqrt(s_tip^2 + s_target^2)), and the running average it
