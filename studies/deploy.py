@@ -235,7 +235,9 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
              "Holm-adjusted p < 0.05; the accepted share by McNemar's exact test). Latency: "
              "the lead's channel k steps late both ways, IK "
              "and joint state current (docs/deploy.md). Noise reaches every measured input "
-             "incl. the tip error. *Accepted*: the commanded joint goals, as the 1 kHz command "
+             "incl. the tip error" + ("; target noise: the target's readings alone, the "
+             "arm's exact (encoders)" if any(c.startswith("target") for c in args.conditions)
+             else "") + ". *Accepted*: the commanded joint goals, as the 1 kHz command "
              "(cubic spline + libfranka's 100 Hz low-pass), within the Panda's joint and tip "
              "velocity/acceleration/jerk limits after the first 0.5 s; *margin*: the median "
              "over seeds of the worst peak / limit (1 = at the limit); *binds*: the limit "

@@ -236,6 +236,14 @@ PRESETS.update([
             "rival (36-D): a learned residual; knows the planned path",
             env=dict(obs_features=OBS_15 + ("tip_error", "target_preview"), feedforward=True),
             lr_schedule="linear"),
+    # ... exploring as a residual on a strong base should (residual policy learning starts
+    # from the base's behaviour): the default log_std_init of -1 shakes the lead by 5.5 cm
+    # RMS per axis (0.37 x max_lead) around a rival that is 2.3 cm off, and preview_feedforward's
+    # first evaluations tracked 0.2-0.8 cm WORSE than its zero lead; -2.5 is 1.2 cm.
+    _preset("preview_feedforward_lowstd", "preview_feedforward exploring 1.2 cm around the "
+            "rival (log_std_init -2.5): a learned residual; knows the planned path",
+            env=dict(obs_features=OBS_15 + ("tip_error", "target_preview"), feedforward=True),
+            lr_schedule="linear", log_std_init=-2.5),
     # The same knowledge, encoded as what the policy cannot read from the present target:
     # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
     # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.
