@@ -221,6 +221,13 @@ class EnvConfig:
     obs_noise (the installation's sensors; under random_noise, their full level); with no
     noise it passes the readings through. tip_error_avg keeps averaging the raw measured
     error (the average is a filter of its own). Needs the three target features observed."""
+    arm_filter: bool = False
+    """The same Kalman filter on the tip's readings (panda_lead/kalman.py, position and
+    velocity measured, acceleration not): the observed ee_pos and ee_vel are its estimates and
+    the tip error is the estimated tip minus the target (reading or, with target_filter, its
+    estimate). The IK reads the joints, not these, so only what a lead observes changes. Its
+    gain is set by obs_noise as target_filter's; with no noise it passes the readings
+    through. Needs ee_pos and ee_vel observed."""
     feedforward: bool = False
     """The model-based feedforward rival under the lead (issue 37; knows the planned path):
     the IK aims FEEDFORWARD_TAU_IK ahead on the planned path plus the lead, and the joint goal
@@ -303,6 +310,9 @@ class EnvConfig:
                 self.obs_features):
             raise UserError("target_filter estimates the target from its position, velocity and "
                             "acceleration readings: observe target_pos, target_vel and target_acc")
+        if self.arm_filter and not {"ee_pos", "ee_vel"} <= set(self.obs_features):
+            raise UserError("arm_filter estimates the tip from its position and velocity "
+                            "readings: observe ee_pos and ee_vel")
         if self.nominal_share and not (self.random_delay or self.random_noise):
             raise UserError("nominal_share is the share of randomised episodes drawn nominal: "
                             "it needs random_delay or random_noise")

@@ -92,21 +92,18 @@ class LeadTask:
         self._target_cols = next((slice(a, b) for f, a, b in self.layout if f == "target_pos"),
                                  None)
         self._target_reading = np.zeros((n, 3))
-        # The tracker's Kalman filter (EnvConfig.target_filter): each slot's estimate (N, 3
-        # rows position/velocity/acceleration, 3 axes), started from the reading at a reset
-        self._filter = None
-        if c.target_filter:
-            cols = {f: slice(a, b) for f, a, b in self.layout}
-            r_std = [c.obs_noise.get(f, 0.0) for f in ("target_pos", "target_vel", "target_acc")]
-            gain = kalman.steady_state_gain(self.dt, r_std, kalman.DEFAULT_JERK_PSD)
-            self._filter = ([cols[f] for f in ("target_pos", "target_vel", "target_acc")],
-                            cols.get("tip_error"), kalman.transition(self.dt), gain)
-            self._estimate = np.zeros((n, 3, 3))
-            self._fresh = np.ones(n, dtype=bool)
-            if c.random_noise:  # each episode's filter is the one for its noise level
-                self._gain_table = kalman.gains_by_share(self.dt, r_std,
-                                                         kalman.DEFAULT_JERK_PSD)
-                self._filter = (*self._filter[:3], np.broadcast_to(gain, (n, 3, 3)).copy())
+        # The tracker's Kalman filter (EnvConfig.target_filter) and the same filter on the
+        # tip's readings (EnvConfig.arm_filter): each slot's estimate, started from the
+        # reading at a reset; under random_noise, the gain of each episode's noise level
+        cols = {f: slice(a, b) for f, a, b in self.layout}
+        self._filters = []
+        for on, features, sign in ((c.target_filter, ("target_pos", "target_vel", "target_acc"),
+                                    -1.0), (c.arm_filter, ("ee_pos", "ee_vel"), 1.0)):
+            if on:
+                self._filters.append(kalman.ReadingFilter(
+                    [cols[f] for f in features], sign, self.dt,
+                    [c.obs_noise.get(f, 0.0) for f in features], n, c.random_noise))
+        self._filter_error_cols = cols.get("tip_error")
         # The feedforward rival under the lead (EnvConfig.feedforward): each slot's planned
         # path and servo goals, recomputed for the slots that reset
         self._feedforward = None
@@ -198,12 +195,8 @@ class LeadTask:
             for i in ids:
                 self.noise_scale[i] = self.rngs[i].uniform()
             self.noise_scale[nominal] = 0.0
-        if self._filter is not None:
-            self._fresh[ids] = True
-            if self.config.random_noise:  # the filter of each episode's noise level
-                levels = len(self._gain_table) - 1
-                self._filter[3][ids] = self._gain_table[
-                    np.rint(self.noise_scale[ids] * levels).astype(np.int64)]
+        for reading_filter in self._filters:  # (the filter of each episode's noise level)
+            reading_filter.restart(ids, self.noise_scale[ids])
         self._set_installation(ids)
         obs = self.observe(ids)
         if self.config.random_delay and self.config.target_delay:
@@ -324,27 +317,13 @@ class LeadTask:
                 raw[np.ix_(ids, noisy)] += self._noise[np.ix_(ids, noisy)]
                 if errs is not None:
                     raw[np.ix_(ids, errs)] += self._reading_noise()[ids]
-        if self._filter is not None:
-            self._filtered(raw, self._all if ids is None else ids)
+        for reading_filter in self._filters:
+            reading_filter.apply(raw, self._all if ids is None else ids,
+                                 self._filter_error_cols)
         if self.config.noisy_ik_target:  # the reading the IK aims at until the next one,
             rows = self._all if ids is None else ids  # of the slots observed (noise drawn)
             self._target_reading[rows] = raw[rows, self._target_cols]
         return (raw * self._inv_scale).astype(np.float32)
-
-    def _filtered(self, raw: np.ndarray, rows) -> None:
-        """Replace slots ``rows``' target readings in ``raw`` by the Kalman filter's estimates
-        (EnvConfig.target_filter), one update per reading; the tip error becomes the tip
-        reading minus the estimated position."""
-        cols, error_cols, f, gain = self._filter
-        z = np.stack([raw[rows, c] for c in cols], axis=1)  # (rows, 3, 3)
-        x = kalman.update(self._estimate[rows], z, f, gain[rows] if gain.ndim == 3 else gain)
-        fresh = self._fresh[rows]
-        x[fresh] = z[fresh]  # a new episode starts from its first reading
-        self._estimate[rows], self._fresh[rows] = x, False
-        for j, c in enumerate(cols):
-            raw[rows, c] = x[:, j]
-        if error_cols is not None:
-            raw[rows, error_cols] -= x[:, 0] - z[:, 0]
 
     def step(self, actions: np.ndarray, discard=None):
         """One control step of every slot -> (obs, reward, terminated, truncated, info), where

@@ -221,6 +221,10 @@ SINGLE_CONFIGS = {
                               obs_noise={"target_pos": 0.01, "ee_pos": 0.005}),
     # the feedforward rival under the lead, the path ahead observed
     "feedforward": dict(feedforward=True, obs_features=("tip_error", "target_preview")),
+    # the same filter on the tip's readings, episodes at their own noise levels
+    "arm_filter": dict(arm_filter=True, target_filter=True, random_noise=True,
+                       nominal_share=0.5, obs_features=OBS_FEATURES,
+                       obs_noise={"ee_pos": 0.01, "ee_vel": 0.1, "target_pos": 0.01}),
     # the tracker's Kalman filter in the env, its estimate observed and aimed at
     "target_filter": dict(target_filter=True, noisy_ik_target=True, random_noise=True,
                           obs_features=OBS_FEATURES,

@@ -404,6 +404,64 @@ def test_env_filter_needs_the_target_readings():
         EnvConfig(target_filter=True, obs_features=("ee_pos", "target_pos"))
 
 
+def _observed_readings(config: EnvConfig, steps: int = 80, seeds=(3, 4, 5, 6)):
+    """Per step of a zero lead: the observation unscaled by feature, and the true tip."""
+    task = LeadTask(config, len(seeds))
+    task.rngs = [np.random.default_rng(s) for s in seeds]
+    task.reset(None, list(seeds))
+    cols = {f: slice(a, b) for f, a, b in task.layout}
+    rows = []
+    for _ in range(steps):
+        obs = task.step(np.zeros((len(seeds), 3)))[0]
+        rows.append(({f: obs[:, c] * OBS_SCALE[f] for f, c in cols.items()},
+                     task.core.tip_pos.copy()))
+    return rows
+
+
+ARM_FEATURES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "tip_error")
+
+
+def test_arm_filter_estimates_the_tip_and_the_tip_error_follows():
+    """arm_filter under 1 cm of noise: the observed tip is nearer the true tip than the
+    reading, and the tip error stays the observed tip minus the observed target (with the
+    target's own filter on, both estimates)."""
+    config = EnvConfig(obs_noise=NOISE_1CM, arm_filter=True, target_filter=True,
+                       obs_features=ARM_FEATURES)
+    seen = {name: _observed_readings(cfg) for name, cfg in
+            (("filtered", config), ("raw", replace(config, arm_filter=False)))}
+    error = {name: np.mean([np.abs(o["ee_pos"] - tip).mean() for o, tip in rows[20:]])
+             for name, rows in seen.items()}
+    assert error["filtered"] < 0.6 * error["raw"]
+    for o, _ in seen["filtered"]:
+        np.testing.assert_allclose(o["tip_error"], o["ee_pos"] - o["target_pos"], atol=2e-6)
+
+
+def test_arm_filter_passes_readings_through_without_noise():
+    config = EnvConfig(arm_filter=True, obs_features=ARM_FEATURES)
+    for (a, _), (b, _) in zip(_observed_readings(config, 40),
+                              _observed_readings(replace(config, arm_filter=False), 40),
+                              strict=True):
+        for f in ARM_FEATURES:
+            np.testing.assert_allclose(a[f], b[f], atol=1e-5)
+
+
+def test_a_state_not_measured_gets_no_gain():
+    from panda_lead import kalman
+
+    quiet = kalman.steady_state_gain(0.01, [0.0, 0.0], kalman.DEFAULT_JERK_PSD, measured=2)
+    np.testing.assert_array_equal(quiet[:, 2], 0.0)
+    np.testing.assert_allclose(quiet[:2, :2], np.eye(2), atol=1e-6)
+    noisy = kalman.steady_state_gain(0.01, [0.01, 0.1], kalman.DEFAULT_JERK_PSD, measured=2)
+    assert 0 < noisy[0, 0] < 1 and noisy[2, 1] != 0  # the acceleration from the velocity
+
+
+def test_arm_filter_needs_the_tip_readings():
+    from panda_lead.errors import UserError
+
+    with pytest.raises(UserError, match="arm_filter .* observe ee_pos and ee_vel"):
+        EnvConfig(arm_filter=True, obs_features=("ee_pos", "target_pos"))
+
+
 # --- what the installation's engineer knows, observed (the installation feature) -------------
 
 def test_the_installation_feature_shows_each_episodes_drawn_latency_and_noise():
@@ -449,7 +507,8 @@ def test_nominal_episodes_have_no_delay_no_noise_and_a_pass_through_filter():
     quiet = ((task.obs_delay == 0) & (task.action_delay == 0) & (task.target_delay == 0)
              & (task.noise_scale == 0))
     assert 20 <= quiet.sum() <= 44  # ~half of 64, where 1 in 64 would be chance
-    gains = task._filter[3]
+    (target_filter,) = task._filters
+    gains = target_filter.gain
     np.testing.assert_allclose(gains[quiet], np.eye(3)[None].repeat(quiet.sum(), 0), atol=1e-6)
     full = kalman.steady_state_gain(task.dt, [0.01, 0.1, 1.0], kalman.DEFAULT_JERK_PSD)
     table = kalman.gains_by_share(task.dt, [0.01, 0.1, 1.0], kalman.DEFAULT_JERK_PSD)

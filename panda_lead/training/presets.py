@@ -221,6 +221,17 @@ PRESETS.update([
                      random_noise=True, nominal_share=0.5, noisy_ik_target=True,
                      target_filter=True, w_action_change=0.1, obs_noise=DEPLOY_NOISE,
                      lead_filter_hz=10.0), lr_schedule="linear"),
+    # ... with the same filter on the tip's readings (EnvConfig.arm_filter): deploy_nominal's
+    # jerk at 1 cm of noise was 938-1,042 m/s^3 against the filtered analytic lead's 615, and
+    # with the arm's readings exact 696-711: most of it was the noisy tip reading going
+    # through the policy (docs/deploy.md).
+    _preset("deploy_armfilter", "deploy_nominal + the Kalman filter on the tip's readings "
+            "too (25-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
+                     obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
+                     random_noise=True, nominal_share=0.5, noisy_ik_target=True,
+                     target_filter=True, arm_filter=True, w_action_change=0.1,
+                     obs_noise=DEPLOY_NOISE, lead_filter_hz=10.0), lr_schedule="linear"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
