@@ -213,12 +213,27 @@ def table_steps() -> list[Step]:
     steps.append(Step((f"{pv}/{HS}_vs_feedforward.md",),
                       ("studies/runs.py", "compare", "--study", HS, "--against-study",
                        "baseline:feedforward"), _runs(HS, "baselines.json"), stdout=True))
+    # the learned residual on the feedforward rival (issue 37; knows the planned path)
+    for study in ("preview_feedforward_5m", "preview_feedforward_lowstd_5m"):
+        out = f"results/studies/{study}"
+        steps += [_report(study), _compare(study, "preview_5m"), _compare(study, HS),
+                  Step((f"{out}/vs_feedforward.md",),
+                       ("studies/runs.py", "compare", "--study", study, "--against-study",
+                        "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
     # issue 36, a lead a real arm could run: the study, and the deployability table
     steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
               _compare(DEPLOY_STUDY, HS)]
     # the pilots toward one lead with no trade-off (docs/deploy.md): the best one's seeds and
     # its step from deploy_real, paired by training seed
     steps += [_report("deploy_nominal_5m"), _compare("deploy_nominal_5m", "deploy_real_5m")]
+    # where the learned lead's jerk under noise comes from: the target's readings alone noisy
+    split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
+             f"{a}seeds/deploy_kalman_5m_s2.zip"]
+    steps.append(Step(tuple(f"results/studies/deploy_nominal_5m/noise_split/deploy.{x}"
+                            for x in ("md", "png")),
+                      ("studies/deploy.py", "--models", *split, "--seeds", "0-99",
+                       "--conditions", "noise1", "targetnoise1", "noise2", "targetnoise2",
+                       "--out", "{dir}"), tuple(split), section="all"))
     deploy_models = [f"{a}{H}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip", f"{a}{DEPLOY}.zip"]
     steps.append(Step(("results/studies/deploy/deploy.md", "results/studies/deploy/deploy.png"),
                       ("studies/deploy.py", "--models", *deploy_models, "--seeds", "0-99",
