@@ -214,7 +214,7 @@ def table_steps() -> list[Step]:
                       ("studies/runs.py", "compare", "--study", HS, "--against-study",
                        "baseline:feedforward"), _runs(HS, "baselines.json"), stdout=True))
     # the learned residual on the feedforward rival (issue 37; knows the planned path)
-    for study in ("preview_feedforward_5m", "preview_feedforward_lowstd_5m"):
+    for study in ("preview_feedforward_5m", "preview_feedforward_settled_5m"):
         out = f"results/studies/{study}"
         steps += [_report(study), _compare(study, "preview_5m"), _compare(study, HS),
                   Step((f"{out}/vs_feedforward.md",),
