@@ -220,6 +220,7 @@ def table_steps() -> list[Step]:
                   Step((f"{out}/vs_feedforward.md",),
                        ("studies/runs.py", "compare", "--study", study, "--against-study",
                         "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
+    steps.append(_compare("preview_feedforward_settled_5m", "preview_feedforward_5m"))
     # issue 36, a lead a real arm could run: the study, and the deployability table
     steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
               _compare(DEPLOY_STUDY, HS)]
