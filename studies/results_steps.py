@@ -227,6 +227,14 @@ def table_steps() -> list[Step]:
     # the pilots toward one lead with no trade-off (docs/deploy.md): the best one's seeds and
     # its step from deploy_real, paired by training seed
     steps += [_report("deploy_nominal_5m"), _compare("deploy_nominal_5m", "deploy_real_5m")]
+    # the filter on the tip's readings too (a pilot), against deploy_nominal
+    steps += [_report("deploy_armfilter_5m"), _compare("deploy_armfilter_5m", "deploy_nominal_5m")]
+    pair = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_armfilter_5m_s3.zip"]
+    steps.append(Step(tuple(f"results/studies/deploy_armfilter_5m/pilot/deploy.{x}"
+                            for x in ("md", "png")),
+                      ("studies/deploy.py", "--models", *pair, "--seeds", "0-99",
+                       "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
+                       "targetnoise1", "noise2", "--out", "{dir}"), tuple(pair), section="all"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
