@@ -73,6 +73,10 @@ def prepare(root: Path) -> None:
     for study in SUMMARIZED:
         for folder in [study, *EXTRA_SEEDS.get(study, [])]:
             found = sorted(glob.glob(f"sweeps/{folder}/runs/*/", root_dir=root))
+            unfinished = [f for f in found if not (root / f / "final_model.zip").is_file()]
+            for f in unfinished:  # a stopped sweep trial: summarize refuses the whole list
+                print(f"skip: {f} is not a finished run (no final_model.zip)", flush=True)
+            found = [f for f in found if f not in unfinished]
             if found:
                 _run(root, *runs, "summarize", "--study", study, "--runs", *found)
     if not (root / "results/runs/baselines.json").exists():

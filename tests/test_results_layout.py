@@ -117,3 +117,24 @@ def test_only_that_matches_nothing_is_a_user_error():
     with pytest.raises(SystemExit) as exc:
         results.main(["tables", "--only", "results/no_such/*", "--dry-run"])
     assert exc.value.code == 2
+
+
+def test_prepare_summarizes_finished_runs_and_skips_a_stopped_trial(tmp_path, monkeypatch,
+                                                                     capsys):
+    """A sweep stopped mid-trial leaves a run folder with only interrupted_model.zip; runs.py
+    summarize refuses a list holding one, so the `all` section must pass the finished ones."""
+    import results_prepare
+
+    runs = tmp_path / "sweeps" / "deploy_nominal_5m" / "runs"
+    for name, files in (("t0000__3__1", ("best_model.zip", "final_model.zip")),
+                        ("t0001__1__2", ("interrupted_model.zip",))):
+        (runs / name).mkdir(parents=True)
+        for f in files:
+            (runs / name / f).write_bytes(b"")
+    calls = []
+    monkeypatch.setattr(results_prepare, "_run", lambda root, *argv: calls.append(argv))
+    results_prepare.prepare(tmp_path)
+    (summarize,) = [c for c in calls if c[1:2] == ("summarize",)]
+    assert summarize[summarize.index("--runs") + 1:] == ("sweeps/deploy_nominal_5m/runs/t0000__3__1/",)
+    assert "skip: sweeps/deploy_nominal_5m/runs/t0001__1__2/ is not a finished run" in \
+        capsys.readouterr().out
