@@ -364,30 +364,39 @@ def test_env_filter_is_the_filtered_rivals_filter():
     assert not np.allclose(raw, rival, atol=1e-4)  # the filter changes what the arm does
 
 
+def _observed_readings(config: EnvConfig, steps: int = 80, seeds=(3, 4, 5, 6)):
+    """Per step of a zero lead: the observation unscaled by feature, the true tip and the
+    true target position."""
+    task = LeadTask(config, len(seeds))
+    task.rngs = [np.random.default_rng(s) for s in seeds]
+    task.reset(None, list(seeds))
+    cols = {f: slice(a, b) for f, a, b in task.layout}
+    rows = []
+    for _ in range(steps):
+        obs = task.step(np.zeros((len(seeds), 3)))[0]
+        rows.append(({f: obs[:, c] * OBS_SCALE[f] for f, c in cols.items()},
+                     task.core.tip_pos.copy(), task.core.target()[0].copy()))
+    return rows
+
+
+def _assert_filter_estimates(config: EnvConfig, switch: str, feature: str, truth: int):
+    """Under 1 cm of noise the filtered ``feature`` is nearer the truth (index ``truth`` of
+    _observed_readings' rows) than the reading with ``switch`` off, and the observed tip error
+    stays the observed tip minus the observed target."""
+    seen = {name: _observed_readings(cfg) for name, cfg in
+            (("filtered", config), ("raw", replace(config, **{switch: False})))}
+    error = {name: np.mean([np.abs(row[0][feature] - row[truth]).mean() for row in rows[20:]])
+             for name, rows in seen.items()}
+    assert error["filtered"] < 0.6 * error["raw"]
+    for o, _, _ in seen["filtered"]:
+        np.testing.assert_allclose(o["tip_error"], o["ee_pos"] - o["target_pos"], atol=2e-6)
+
+
 def test_env_filter_estimates_the_target_and_the_tip_error_follows():
-    """Under 1 cm of noise the observed target position is nearer the true one than the
-    reading, and the observed tip error stays the tip reading minus the observed target."""
     config = EnvConfig(obs_noise=NOISE_1CM, target_filter=True,
                        obs_features=("ee_pos", "target_pos", "target_vel", "target_acc",
                                      "tip_error"))
-    plain = replace(config, target_filter=False)
-    seen = {}
-    for name, cfg in (("filtered", config), ("raw", plain)):
-        task = LeadTask(cfg, 4)
-        task.rngs = [np.random.default_rng(s) for s in range(4)]
-        obs = task.reset(None, [3, 4, 5, 6])
-        rows = []
-        for _ in range(80):
-            obs = task.step(np.zeros((4, 3)))[0]
-            cols = {f: slice(a, b) for f, a, b in task.layout}
-            unscaled = {f: obs[:, cols[f]] * OBS_SCALE[f] for f in cols}
-            rows.append((unscaled, task.core.target()[0].copy()))
-        seen[name] = rows
-    error = {name: np.mean([np.abs(o["target_pos"] - true).mean() for o, true in rows[20:]])
-             for name, rows in seen.items()}
-    assert error["filtered"] < 0.6 * error["raw"]
-    for o, _ in seen["filtered"]:
-        np.testing.assert_allclose(o["tip_error"], o["ee_pos"] - o["target_pos"], atol=2e-6)
+    _assert_filter_estimates(config, "target_filter", "target_pos", truth=2)
 
 
 def test_env_filter_passes_readings_through_without_noise():
@@ -404,42 +413,20 @@ def test_env_filter_needs_the_target_readings():
         EnvConfig(target_filter=True, obs_features=("ee_pos", "target_pos"))
 
 
-def _observed_readings(config: EnvConfig, steps: int = 80, seeds=(3, 4, 5, 6)):
-    """Per step of a zero lead: the observation unscaled by feature, and the true tip."""
-    task = LeadTask(config, len(seeds))
-    task.rngs = [np.random.default_rng(s) for s in seeds]
-    task.reset(None, list(seeds))
-    cols = {f: slice(a, b) for f, a, b in task.layout}
-    rows = []
-    for _ in range(steps):
-        obs = task.step(np.zeros((len(seeds), 3)))[0]
-        rows.append(({f: obs[:, c] * OBS_SCALE[f] for f, c in cols.items()},
-                     task.core.tip_pos.copy()))
-    return rows
-
-
 ARM_FEATURES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "tip_error")
 
 
 def test_arm_filter_estimates_the_tip_and_the_tip_error_follows():
-    """arm_filter under 1 cm of noise: the observed tip is nearer the true tip than the
-    reading, and the tip error stays the observed tip minus the observed target (with the
-    target's own filter on, both estimates)."""
+    """(with the target's own filter on, the tip error is the difference of both estimates)"""
     config = EnvConfig(obs_noise=NOISE_1CM, arm_filter=True, target_filter=True,
                        obs_features=ARM_FEATURES)
-    seen = {name: _observed_readings(cfg) for name, cfg in
-            (("filtered", config), ("raw", replace(config, arm_filter=False)))}
-    error = {name: np.mean([np.abs(o["ee_pos"] - tip).mean() for o, tip in rows[20:]])
-             for name, rows in seen.items()}
-    assert error["filtered"] < 0.6 * error["raw"]
-    for o, _ in seen["filtered"]:
-        np.testing.assert_allclose(o["tip_error"], o["ee_pos"] - o["target_pos"], atol=2e-6)
+    _assert_filter_estimates(config, "arm_filter", "ee_pos", truth=1)
 
 
 def test_arm_filter_passes_readings_through_without_noise():
     config = EnvConfig(arm_filter=True, obs_features=ARM_FEATURES)
-    for (a, _), (b, _) in zip(_observed_readings(config, 40),
-                              _observed_readings(replace(config, arm_filter=False), 40),
+    for (a, _, _), (b, _, _) in zip(_observed_readings(config, 40),
+                                    _observed_readings(replace(config, arm_filter=False), 40),
                               strict=True):
         for f in ARM_FEATURES:
             np.testing.assert_allclose(a[f], b[f], atol=1e-5)
