@@ -44,6 +44,10 @@ class Args:
     pair's samples/s, wall ratio and peak memory (PSS, whole process tree), then the medians."""
     update_steps: int = 300_000
     """Training steps per run of --update-pairs."""
+    env_only: bool = False
+    """Only the env's figures (physics, single env, batched env per thread and on every
+    thread, the physics-bound limit): no PPO, no memory run (studies/device_plan.py times PPO
+    through train.py itself)."""
     single_pairs: int = 0
     """Only the single env's ratio, the same way: raw physics and a gymnasium.make step (400
     random-action steps, median of 3 each) back to back this many times, each ratio and their
@@ -296,6 +300,14 @@ def main() -> None:
         row(f"batched env, {n_big} envs, {threads} threads",
             f"{rate:,.0f} env steps/s ({rate / base:.2f}x one thread; target >= "
             f"{0.7 * threads:.1f}x)")
+    if max_workers >= 8:  # 16 envs per thread are too few to fill a many-core machine
+        _, rate = bench_batched(4 * n_big, max_workers, steps // 4, reps)
+        row(f"batched env, {4 * n_big} envs, {max_workers} threads",
+            f"{rate:,.0f} env steps/s ({rate / base:.2f}x one thread at {n_big} envs)")
+    row(f"physics-bound limit, {cores} cores (cores x 1 / raw physics)",
+        f"{cores * 1e6 / physics:,.0f} env steps/s")
+    if args.env_only:
+        return finish(args, rows, cores)
     rate = bench_subproc(max_workers, secs)
     row(f"SB3 SubprocVecEnv, {max_workers} envs ({max_workers} processes)", f"{rate:,.0f} env steps/s")
     iters = 1 if args.quick else args.ppo_iterations
@@ -319,7 +331,11 @@ def main() -> None:
         f"{def_rate:,.0f} ({def_rate / ref_rate:.1f}x reference)")
     peak, wall = bench_memory(20_000 if args.quick else 100_000)
     row("peak memory of `train.py` (defaults, whole process tree, PSS)", f"{peak:,.0f} MB")
+    finish(args, rows, cores)
 
+
+def finish(args: Args, rows: list[tuple[str, str]], cores: int) -> None:
+    """Print the rows as a markdown table headed by the command, machine and date."""
     cpu = cpu_model()
     header = (f"`{shlex.join(['uv', 'run', 'studies/bench.py', *sys.argv[1:]])}` on {cores} cores "
               f"({cpu}), {time.strftime('%Y-%m-%d')}, Python {platform.python_version()}")

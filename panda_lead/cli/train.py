@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ..errors import UserError, exit_on_user_error, parse_cli
 from ..training.config import (
+    PROFILES,
     REFERENCE_HPARAMS,
     RESUME_MAY_CHANGE,
     TrainArgs,
@@ -34,10 +35,14 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
     pre.add_argument("--preset")
     pre.add_argument("--resume")
     pre.add_argument("--reference-hparams", action="store_true")
+    pre.add_argument("--profile", default="auto")
+    pre.add_argument("--device", default="cpu")
     known, _ = pre.parse_known_args(argv)
-    if known.resume and known.reference_hparams:
-        raise UserError("--reference-hparams changes what a run learns; --resume continues a "
-                        "run with its own config (start a new run instead)")
+    for flag_, given in (("--reference-hparams", known.reference_hparams),
+                         ("--profile", known.profile != "auto")):
+        if known.resume and given:
+            raise UserError(f"{flag_} changes what a run learns; --resume continues a run with "
+                            "its own config (start a new run instead)")
     if known.resume:
         base = read_run_config(Path(known.resume))
     elif known.preset:
@@ -46,8 +51,11 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
         base = TrainConfig()
     if known.reference_hparams:
         base = dataclasses.replace(base, **REFERENCE_HPARAMS)
+    profile = machine_profile(known.profile, known.device, bool(known.resume))
+    if profile != "cpu":
+        base = dataclasses.replace(base, **PROFILES[profile])
     default = TrainArgs(**{f.name: getattr(base, f.name) for f in dataclasses.fields(TrainConfig)},
-                        reference_hparams=known.reference_hparams)
+                        reference_hparams=known.reference_hparams, profile=profile)
     args = parse_cli(TrainArgs, argv, default=default, prog=prog, description=description)
     if known.resume:
         changed = [f.name for f in dataclasses.fields(TrainConfig)
@@ -59,10 +67,31 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
     return args
 
 
+def machine_profile(profile: str, device: str, resuming: bool) -> str:
+    """The profile a command line trains with: the one named, else gpu for a CUDA device;
+    cpu (no change) when resuming, where the run's own config decides."""
+    if profile not in ("auto", *PROFILES):
+        raise UserError(f"--profile must be one of auto, {', '.join(PROFILES)}; got {profile!r}")
+    if resuming:
+        return "cpu"
+    if profile == "auto":
+        return "gpu" if device.startswith("cuda") else "cpu"
+    return profile
+
+
+def describe_profile(args: TrainArgs) -> str:
+    """One line: which machine profile the run trains with and the values it sets."""
+    if args.resume:
+        return "profile: the resumed run's own config"
+    values = ", ".join(f"{flag(k)} {getattr(args, k)}" for k in PROFILES["gpu"])
+    return f"profile {args.profile} (training/config.py PROFILES; flags given override): {values}"
+
+
 @exit_on_user_error
 def run(argv: list[str], prog: str = "train.py") -> None:
     description = f"{__doc__}\nPresets:\n{preset_table()}"
     args = parse_args(argv, prog=prog, description=description)
+    print(describe_profile(args), flush=True)
     # After the command line is checked: the loop imports torch and stable-baselines3 (~5 s).
     from ..training.loop import TrainingInterrupted, train
 

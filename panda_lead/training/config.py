@@ -186,6 +186,10 @@ class TrainArgs(TrainConfig):
     reference_hparams: bool = False
     """Start from the reference work's PPO settings (8 SubprocVecEnv envs, n_steps 1024,
     batch 64, lr 3e-4, log_std_init 0); flags given still override them."""
+    profile: Literal["auto", "cpu", "gpu"] = "auto"
+    """The machine's PPO collection and batch sizes (training/config.py PROFILES): cpu, the
+    2-core defaults; gpu, a CUDA learner's (device cuda, more envs, larger minibatches); auto:
+    gpu when --device cuda is given, else cpu. Flags given still override them."""
     runs_dir: Path = Path("runs")
     """Where run folders are created."""
     name: str | None = None
@@ -214,6 +218,17 @@ class TrainArgs(TrainConfig):
 # The reference work's configuration (what `--reference-hparams` starts from).
 REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=64, n_epochs=10,
                          learning_rate=3e-4, log_std_init=0.0, curriculum_steps=0)
+
+
+# Machine profiles: PPO's collection and batch sizes for the machine that trains (what
+# `--profile` starts from; a preset and every flag given still override them). cpu: the
+# defaults above, chosen on 2 cores (docs/performance.md, "Time to quality"). gpu: what a
+# 16-core machine with a CUDA learner trains fastest with at kept quality (docs/performance.md,
+# "16 cores and a GPU"); `--device cuda` picks it unless --profile cpu is given.
+PROFILES: dict[str, dict] = {
+    "cpu": {},
+    "gpu": dict(device="cuda", n_envs=128, n_steps=128, batch_size=4096),
+}
 
 
 # Run-time settings --resume may change; the rest must stay what the run was trained with.

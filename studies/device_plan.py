@@ -1,0 +1,329 @@
+"""Issue 41's plan for a lent 16-core + GPU machine, as one script with a time bound per step.
+
+    python3 studies/device_plan.py --wheels .whl --out "$OUT"     # on the device machine
+    uv run studies/device_plan.py --small --out /tmp/plan           # dry run here (minutes)
+
+The device machine is lent for about 15 minutes at a stretch, its start included, and has no
+package registry: the wheels it lacks travel in .whl/ (docs/performance.md, "16 cores and a
+GPU", says how they are fetched) and this script installs them into /tmp/site first. Then, each
+step in its own process with its own time limit, most important first:
+
+1. the machine: CPU, cores, GPU, torch, CUDA, mujoco;
+2. `--device cuda` end to end: train (the gpu profile that `--device cuda` picks), resume,
+   archive; the archived model comes back to be evaluated on a CPU machine (a test);
+3. the env: `studies/bench.py --env-only` (physics, batched env per thread and on all threads,
+   the physics-bound limit);
+4. PPO samples/s through `train.py` itself (FastPPO, evaluations off; SB3's own time/fps, which
+   starts after the process and env are built) for the reference configuration, the 2-core
+   default with the CPU and the CUDA learner, and larger collections and minibatches; the peak
+   memory (PSS) of each run's whole process tree;
+5. quality: the gpu profile for 5M steps on two training seeds at once, each pinned to half
+   the cores (samples, not seconds, decide quality; their wall time is not a throughput
+   figure), evaluated every 250k steps, against the 2-core default's five seeds on the same
+   evaluation grid.
+
+Everything lands in --out: table.md (one table), log.txt (every step's output), bench_env.md,
+and artifacts.tar.gz (the archived CUDA model, the quality runs' progress.csv, config.json and
+best models). A step that runs out of time is killed and reported as such; the rest go on.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SITE = Path("/tmp/site")
+
+
+@dataclass
+class Args:
+    out: Path = Path("device_plan_out")
+    """Where table.md, log.txt, bench_env.md and artifacts.tar.gz go."""
+    wheels: Path | None = None
+    """A folder of wheels to install into /tmp/site first (the device machine's missing
+    packages); none here, where uv has installed everything."""
+    small: bool = False
+    """Tiny budgets and the CPU instead of CUDA where there is none: a dry run of the script."""
+    quality_steps: int = 5_000_000
+    """Training steps of each quality run."""
+    quality_limit_s: int = 170
+    """Time limit of the quality runs (both run at once); a run cut short reports its curve."""
+
+
+def parse() -> Args:
+    # stdlib only: this runs before the wheels that bring tyro are installed
+    import argparse
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--out", type=Path, default=Args.out)
+    p.add_argument("--wheels", type=Path)
+    p.add_argument("--small", action="store_true")
+    p.add_argument("--quality-steps", type=int, default=Args.quality_steps)
+    p.add_argument("--quality-limit-s", type=int, default=Args.quality_limit_s)
+    return Args(**vars(p.parse_args()))
+
+
+class Log:
+    """Every step's output, appended to log.txt and echoed (the device returns the tail)."""
+
+    def __init__(self, path: Path):
+        self.file = open(path, "a", buffering=1)
+
+    def __call__(self, text: str) -> None:
+        print(text, flush=True)
+        self.file.write(text + "\n")
+
+
+def install_wheels(wheels: Path, log: Log) -> None:
+    cmd = [sys.executable, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile",
+           "--no-cache-dir", "--upgrade", "--target", str(SITE), *map(str, sorted(wheels.glob("*.whl")))]
+    subprocess.run(cmd, check=True)
+    # gymnasium-robotics is here only for its Franka meshes (core._mesh_assets): the trimmed
+    # copy in .whl/ holds just them, which keeps the working tree under the device's 64 MiB.
+    trimmed = wheels / "gymnasium_robotics"
+    if trimmed.is_dir():
+        shutil.copytree(trimmed, SITE / "gymnasium_robotics", dirs_exist_ok=True)
+    log(f"installed {len(list(wheels.glob('*.whl')))} wheels into {SITE}")
+
+
+def child_env() -> dict:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    paths = [str(SITE)] if SITE.is_dir() else []
+    paths += [str(REPO), *filter(None, [env.get("PYTHONPATH")])]
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    return env
+
+
+def tree_pss_mb(pid: int) -> float:
+    """PSS of a process and its descendants (shared pages counted once; Linux /proc)."""
+    total, stack = 0, [pid]
+    while stack:
+        p = stack.pop()
+        try:
+            with open(f"/proc/{p}/smaps_rollup") as f:
+                total += next(int(line.split()[1]) for line in f if line.startswith("Pss:"))
+            with open(f"/proc/{p}/task/{p}/children") as f:
+                stack.extend(int(c) for c in f.read().split())
+        except (OSError, StopIteration):
+            continue
+    return total / 1024
+
+
+def run_step(name: str, cmd: list[str], limit_s: float, log: Log, cpus: set[int] | None = None
+             ) -> tuple[int | None, float, float, str]:
+    """Run one command with a time limit (on the cores ``cpus`` only, if given): (exit status or
+    None when killed at the limit, wall s, peak PSS MB, its output). Its output goes to the log
+    as it comes."""
+    log(f"\n=== {name}: {' '.join(cmd)} (limit {limit_s:.0f} s"
+        + (f", cores {min(cpus)}-{max(cpus)})" if cpus else ")"))
+    t = time.perf_counter()
+    pin = (lambda: os.sched_setaffinity(0, cpus)) if cpus else None
+    proc = subprocess.Popen(cmd, cwd=REPO, env=child_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                            preexec_fn=pin)
+    lines: list[str] = []
+
+    def read() -> None:
+        for line in proc.stdout:
+            lines.append(line)
+            log(f"[{name}] {line.rstrip()}")
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    peak = 0.0
+    while proc.poll() is None and time.perf_counter() - t < limit_s:
+        peak = max(peak, tree_pss_mb(proc.pid))
+        time.sleep(0.25)
+    status = proc.poll()
+    if status is None:
+        os.killpg(proc.pid, 9)
+        proc.wait()
+        log(f"=== {name}: killed at its {limit_s:.0f} s limit")
+    reader.join(5)
+    wall = time.perf_counter() - t
+    log(f"=== {name}: exit {status}, {wall:.1f} s, peak {peak:,.0f} MB")
+    return status, wall, peak, "".join(lines)
+
+
+def progress(run_root: Path) -> list[dict]:
+    """The rows of the one run folder's tb/progress.csv under run_root (empty if none yet)."""
+    files = sorted(run_root.glob("*/tb/progress.csv"))
+    if not files:
+        return []
+    with open(files[0]) as f:
+        return list(csv.DictReader(f))
+
+
+def train_cmd(*flags: str) -> list[str]:
+    return [sys.executable, str(REPO / "train.py"), "--no-progress", *flags]
+
+
+def machine(log: Log) -> dict:
+    code = ("import json, os, platform, torch, mujoco, stable_baselines3 as sb3;"
+            "g = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None;"
+            "print('MACHINE ' + json.dumps(dict(python=platform.python_version(), cores=os.cpu_count(),"
+            "torch=torch.__version__, cuda=torch.version.cuda, gpu=g, mujoco=mujoco.__version__,"
+            "sb3=sb3.__version__)))")
+    status, _, _, out = run_step("machine", [sys.executable, "-c", code], 120, log)
+    info = next((json.loads(x[8:]) for x in out.splitlines() if x.startswith("MACHINE ")), {})
+    with open("/proc/cpuinfo") as f:
+        info["cpu"] = next((x.split(":", 1)[1].strip() for x in f if "model name" in x), "?")
+    return info
+
+
+def main() -> None:
+    args = parse()
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = Log(args.out / "log.txt")
+    t_start = time.perf_counter()
+    if args.wheels:
+        install_wheels(args.wheels, log)
+    info = machine(log)
+    log(f"machine: {info}")
+    cuda = "cuda" if info.get("gpu") else "cpu"  # the dry run has no GPU: the same steps on cpu
+    cores = info.get("cores") or os.cpu_count() or 1
+    work = Path(tempfile.mkdtemp(prefix="device_plan_"))
+    rows: list[tuple[str, str]] = []
+    artifacts: list[tuple[Path, str]] = []
+
+    def row(name: str, value: str) -> None:
+        rows.append((name, value))
+        log(f"ROW {name}: {value}")
+
+    # 2. --device cuda end to end: train with the profile it picks, resume, archive.
+    e2e = work / "e2e"
+    small = ["--n-envs", "8", "--n-steps", "64", "--batch-size", "256"] if args.small else []
+    one = 512 if args.small else 16384  # one rollout of the profile's collection
+    archived = f"{cuda}_e2e"  # cuda_e2e on the device; a dry run's cpu_e2e is deleted below
+    status, _, _, _ = run_step("e2e_train", train_cmd(
+        "--device", cuda, *small, "--timesteps", str(2 * one), "--eval-freq", str(one),
+        "--checkpoint-freq", str(one), "--runs-dir", str(e2e), "--name", archived,
+        "--seed", "7"), 120, log)
+    runs = sorted(e2e.glob(f"{archived}*"))
+    if status == 0 and runs:
+        status, _, _, _ = run_step("e2e_resume_archive", train_cmd(
+            "--resume", str(runs[0]), "--timesteps", str(4 * one), "--device", cuda,
+            "--archive", archived, "--force"), 120, log)
+    shipped = [REPO / "archive" / f"{archived}{suffix}" for suffix in (".zip", ".json", ".md")]
+    artifacts += [(f, f"archive/{f.name}") for f in shipped if status == 0 and f.is_file()]
+    row(f"`--device {cuda}` end to end: train {2 * one:,} steps (the profile `--device` picks), "
+        f"resume to {4 * one:,}, archive", "ok" if status == 0 else f"failed (exit {status}; log.txt)")
+
+    # 3. The env alone.
+    bench = [sys.executable, str(REPO / "studies" / "bench.py"), "--env-only", "--repeats", "3",
+             "--out", str(args.out / "bench_env.md")] + (["--quick"] if args.small else [])
+    status, _, _, out = run_step("bench_env", bench, 150, log)
+    for line in out.splitlines():
+        if line.startswith("| ") and not line.startswith(("| figure", "|---")):
+            name, value = [c.strip() for c in line.strip("|").split("|", 1)]
+            row(name, value)
+
+    # 4. PPO samples/s through train.py.
+    it_default = 32 * 128
+    candidates = [  # name, flags, steps
+        ("reference configuration (8 SubprocVecEnv, n_steps 1024, batch 64), CPU learner",
+         ["--reference-hparams"], 3 * 8192),
+        ("2-core default (32 envs x 128 steps, batch 1,024), CPU learner",
+         ["--profile", "cpu"], 40 * it_default),
+        ("2-core default, CUDA learner", ["--profile", "cpu", "--device", cuda], 40 * it_default),
+        ("128 envs x 128 steps, batch 1,024, CPU learner", ["--profile", "cpu", "--n-envs", "128"],
+         12 * 16384),
+        ("128 envs x 128 steps, batch 1,024, CUDA learner",
+         ["--profile", "gpu", "--device", cuda, "--batch-size", "1024"], 12 * 16384),
+        ("gpu profile: 128 envs x 128 steps, batch 4,096, CUDA learner",
+         ["--profile", "gpu", "--device", cuda], 12 * 16384),
+        ("256 envs x 128 steps, batch 8,192, CUDA learner",
+         ["--profile", "gpu", "--device", cuda, "--n-envs", "256", "--batch-size", "8192"],
+         6 * 32768),
+    ]
+    rates = {}
+    for name, flags, steps in candidates:
+        if args.small:
+            flags = [*flags, "--n-envs", "8", "--n-steps", "64", "--batch-size", "256"]
+            steps = 2048
+        root = work / f"ppo{len(rates)}"
+        status, wall, peak, _ = run_step(name, train_cmd(
+            *flags, "--timesteps", str(steps), "--eval-freq", "0", "--checkpoint-freq",
+            str(10**9), "--runs-dir", str(root), "--seed", "1"), 75 if not rates else 60, log)
+        rows_ = progress(root)
+        fps = next((float(r["time/fps"]) for r in reversed(rows_) if r.get("time/fps")), None)
+        done = next((int(float(r["time/total_timesteps"])) for r in reversed(rows_)
+                     if r.get("time/total_timesteps")), 0)
+        rates[name] = fps
+        if fps:
+            row(f"PPO samples/s, {name}", f"{fps:,.0f} ({done:,} steps; 5M in "
+                f"{5e6 / fps / 60:.1f} min; peak {peak:,.0f} MB; process {wall:.0f} s)")
+        else:
+            row(f"PPO samples/s, {name}", f"no figure (exit {status}; log.txt)")
+    ref = rates[candidates[0][0]]
+    if ref:
+        for name, _, _ in candidates[1:]:
+            if rates[name]:
+                row(f"ratio to the reference configuration: {name}", f"{rates[name] / ref:.1f}x")
+
+    # 5. Quality: the gpu profile, 5M steps, two seeds at once on half the cores each.
+    steps = 40_960 if args.small else args.quality_steps
+    every = 8192 if args.small else 250_000
+    half = max(1, cores // 2)
+    threads: list[threading.Thread] = []
+    results: dict[int, tuple] = {}
+    for i, seed in enumerate((1, 2)):
+        cpus = set(range(i * half, i * half + half))
+        flags = ["--profile", "gpu", "--device", cuda, "--n-workers", str(half), *small]
+        cmd = train_cmd(*flags, "--timesteps", str(steps), "--eval-freq", str(every),
+                        "--checkpoint-freq", str(10**9), "--runs-dir", str(work / f"q{seed}"),
+                        "--name", "quality", "--seed", str(seed))
+        th = threading.Thread(target=lambda s=seed, c=cmd, p=cpus: results.__setitem__(
+            s, run_step(f"quality_s{s}", c, args.quality_limit_s, log, p)))
+        th.start()
+        threads.append(th)
+    for th in threads:
+        th.join()
+    for seed in (1, 2):
+        rows_ = progress(work / f"q{seed}")
+        curve = [(int(float(r["eval/timesteps"])), float(r["eval/mean_error_cm"]))
+                 for r in rows_ if r.get("eval/mean_error_cm")]
+        status = results[seed][0]
+        if curve:
+            best = min(e for _, e in curve)
+            row(f"quality, gpu profile, seed {seed} (evaluation set, every {every:,} steps)",
+                f"best {best:.2f} cm, last {curve[-1][1]:.2f} cm at {curve[-1][0]:,} steps "
+                f"({'finished' if status == 0 else 'cut at the time limit'}); curve "
+                + " ".join(f"{e:.2f}" for _, e in curve))
+        else:
+            row(f"quality, gpu profile, seed {seed}", f"no evaluation (exit {status}; log.txt)")
+        for run in (work / f"q{seed}").glob("*"):
+            for rel in ("tb/progress.csv", "config.json", "best_model.zip", "best_model.json"):
+                if (run / rel).is_file():
+                    artifacts.append((run / rel, f"quality_s{seed}/{rel.replace('/', '_')}"))
+
+    total = time.perf_counter() - t_start
+    head = (f"`python3 studies/device_plan.py{' --small' if args.small else ''}` on {cores} cores "
+            f"({info.get('cpu')}), GPU {info.get('gpu')}, {time.strftime('%Y-%m-%d')}, Python "
+            f"{info.get('python')}, torch {info.get('torch')} (CUDA {info.get('cuda')}), mujoco "
+            f"{info.get('mujoco')}, SB3 {info.get('sb3')}; the whole plan {total:.0f} s")
+    table = "\n".join([head, "", "| figure | value |", "|---|---|",
+                       *[f"| {k} | {v} |" for k, v in rows]])
+    (args.out / "table.md").write_text(table + "\n")
+    with tarfile.open(args.out / "artifacts.tar.gz", "w:gz") as tar:
+        for path, name in artifacts:
+            tar.add(path, arcname=name)
+    if cuda == "cpu":  # a dry run leaves nothing in the checkout's archive/
+        for f in shipped:
+            f.unlink(missing_ok=True)
+    log("\n" + table)
+
+
+if __name__ == "__main__":
+    main()
