@@ -59,6 +59,16 @@ class Args:
     """Training steps of each quality run."""
     quality_limit_s: int = 170
     """Time limit of the quality runs (both run at once); a run cut short reports its curve."""
+    quality_only: bool = False
+    """Only step 5 (a second call on the machine, for another candidate's quality)."""
+    test_quality: bool = False
+    """Here, after the device: play the gpu profile's quality models (archive/seeds/
+    gpu_profile_5m_s1/s2.zip, brought back from the machine) on the 1,000 test seeds and pair
+    each with the 2-core default's same training seed (results/runs/curriculum_5m); markdown
+    to stdout."""
+    quality_flags: str = ""
+    """Flags added to the quality runs' (after --profile gpu), e.g. "--n-envs 256 --batch-size
+    8192"."""
 
 
 def parse() -> Args:
@@ -71,6 +81,9 @@ def parse() -> Args:
     p.add_argument("--small", action="store_true")
     p.add_argument("--quality-steps", type=int, default=Args.quality_steps)
     p.add_argument("--quality-limit-s", type=int, default=Args.quality_limit_s)
+    p.add_argument("--quality-only", action="store_true")
+    p.add_argument("--quality-flags", default="")
+    p.add_argument("--test-quality", action="store_true")
     return Args(**vars(p.parse_args()))
 
 
@@ -182,8 +195,45 @@ def machine(log: Log) -> dict:
     return info
 
 
+def test_quality() -> None:
+    """The --test-quality table (see Args.test_quality)."""
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "studies"))
+    from panda_lead import harness
+    from panda_lead.metrics.stats import paired_ci
+    from panda_lead.summaries import read_json
+    from runs import KEYS, TEST, _metrics_on_test
+
+    names = {"mean_err": "mean error (cm)", "settled_err": "settled error (cm)",
+             "jerk_rms": "jerk RMS (m/s^3)"}
+    print(f"Test seeds {TEST}, 5 s episodes: the gpu profile's best model (evaluation set, "
+          "every 250k steps) against the 2-core default's (`curriculum_5m`) of the same training "
+          "seed; differences gpu - default, paired by trajectory, 95% bootstrap CIs. "
+          "`uv run studies/device_plan.py --test-quality`\n")
+    print("| seed | metric | gpu profile | 2-core default | difference [95% CI] |")
+    print("|---|---|---|---|---|")
+    for seed in (1, 2):
+        model = REPO / "archive" / "seeds" / f"gpu_profile_5m_s{seed}.zip"
+        ctrl = harness.build("policy", 500, model)
+        gpu = _metrics_on_test(ctrl)
+        cpu = read_json(REPO / "results" / "runs" / "curriculum_5m" / f"seed_{seed}.json",
+                        "a run summary")["test"]
+        for k in KEYS:
+            a, b = np.array(gpu[k]), np.array(cpu[k])
+            lo, hi = paired_ci(a - b)
+            print(f"| {seed} | {names[k]} | {a.mean():.3f} | {b.mean():.3f} | "
+                  f"{(a - b).mean():+.3f} [{lo:+.3f}, {hi:+.3f}] |", flush=True)
+    means = [np.mean(read_json(f, "a run summary")["test"]["mean_err"])
+             for f in sorted((REPO / "results" / "runs" / "curriculum_5m").glob("seed_*.json"))]
+    print(f"\nThe 2-core default's {len(means)} seeds: test mean error {min(means):.2f}-"
+          f"{max(means):.2f} cm (mean {np.mean(means):.2f}).")
+
+
 def main() -> None:
     args = parse()
+    if args.test_quality:
+        return test_quality()
     args.out.mkdir(parents=True, exist_ok=True)
     log = Log(args.out / "log.txt")
     t_start = time.perf_counter()
@@ -201,9 +251,16 @@ def main() -> None:
         rows.append((name, value))
         log(f"ROW {name}: {value}")
 
+    small = ["--n-envs", "8", "--n-steps", "64", "--batch-size", "256"] if args.small else []
+    if not args.quality_only:
+        steps_2_to_4(args, log, work, cuda, small, row, artifacts)
+    quality(args, log, work, cuda, cores, small, row, artifacts)
+    finish(args, log, info, cores, rows, artifacts, t_start)
+
+
+def steps_2_to_4(args, log, work, cuda, small, row, artifacts) -> None:
     # 2. --device cuda end to end: train with the profile it picks, resume, archive.
     e2e = work / "e2e"
-    small = ["--n-envs", "8", "--n-steps", "64", "--batch-size", "256"] if args.small else []
     one = 512 if args.small else 16384  # one rollout of the profile's collection
     archived = f"{cuda}_e2e"  # cuda_e2e on the device; a dry run's cpu_e2e is deleted below
     status, _, _, _ = run_step("e2e_train", train_cmd(
@@ -255,7 +312,8 @@ def main() -> None:
         root = work / f"ppo{len(rates)}"
         status, wall, peak, _ = run_step(name, train_cmd(
             *flags, "--timesteps", str(steps), "--eval-freq", "0", "--checkpoint-freq",
-            str(10**9), "--runs-dir", str(root), "--seed", "1"), 75 if not rates else 60, log)
+            str(10**9), "--runs-dir", str(root), "--seed", "1"),
+            300 if args.small else 75 if not rates else 60, log)  # small: 2 slow cores
         rows_ = progress(root)
         fps = next((float(r["time/fps"]) for r in reversed(rows_) if r.get("time/fps")), None)
         done = next((int(float(r["time/total_timesteps"])) for r in reversed(rows_)
@@ -272,6 +330,9 @@ def main() -> None:
             if rates[name]:
                 row(f"ratio to the reference configuration: {name}", f"{rates[name] / ref:.1f}x")
 
+
+
+def quality(args, log, work, cuda, cores, small, row, artifacts) -> None:
     # 5. Quality: the gpu profile, 5M steps, two seeds at once on half the cores each.
     steps = 40_960 if args.small else args.quality_steps
     every = 8192 if args.small else 250_000
@@ -280,7 +341,8 @@ def main() -> None:
     results: dict[int, tuple] = {}
     for i, seed in enumerate((1, 2)):
         cpus = set(range(i * half, i * half + half))
-        flags = ["--profile", "gpu", "--device", cuda, "--n-workers", str(half), *small]
+        flags = ["--profile", "gpu", "--device", cuda, "--n-workers", str(half),
+                 *args.quality_flags.split(), *small]
         cmd = train_cmd(*flags, "--timesteps", str(steps), "--eval-freq", str(every),
                         "--checkpoint-freq", str(10**9), "--runs-dir", str(work / f"q{seed}"),
                         "--name", "quality", "--seed", str(seed))
@@ -297,7 +359,8 @@ def main() -> None:
         status = results[seed][0]
         if curve:
             best = min(e for _, e in curve)
-            row(f"quality, gpu profile, seed {seed} (evaluation set, every {every:,} steps)",
+            row(f"quality, gpu profile {args.quality_flags}, seed {seed} (evaluation set, "
+                f"every {every:,} steps)",
                 f"best {best:.2f} cm, last {curve[-1][1]:.2f} cm at {curve[-1][0]:,} steps "
                 f"({'finished' if status == 0 else 'cut at the time limit'}); curve "
                 + " ".join(f"{e:.2f}" for _, e in curve))
@@ -308,6 +371,9 @@ def main() -> None:
                 if (run / rel).is_file():
                     artifacts.append((run / rel, f"quality_s{seed}/{rel.replace('/', '_')}"))
 
+
+
+def finish(args, log, info, cores, rows, artifacts, t_start) -> None:
     total = time.perf_counter() - t_start
     head = (f"`python3 studies/device_plan.py{' --small' if args.small else ''}` on {cores} cores "
             f"({info.get('cpu')}), GPU {info.get('gpu')}, {time.strftime('%Y-%m-%d')}, Python "
@@ -319,9 +385,9 @@ def main() -> None:
     with tarfile.open(args.out / "artifacts.tar.gz", "w:gz") as tar:
         for path, name in artifacts:
             tar.add(path, arcname=name)
-    if cuda == "cpu":  # a dry run leaves nothing in the checkout's archive/
-        for f in shipped:
-            f.unlink(missing_ok=True)
+    if not info.get("gpu"):  # a dry run leaves nothing in the checkout's archive/
+        for f in (REPO / "archive").glob("cpu_e2e.*"):
+            f.unlink()
     log("\n" + table)
 
 

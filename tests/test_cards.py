@@ -131,3 +131,14 @@ def test_a_card_is_numbered_on_the_pinned_matrix_path_from_any_process(monkeypat
     assert children == ["SSE4_2"]
     promised = re.search(r"# card: ([0-9.]+) cm", (ROOT / "archive" / "ikfree.md").read_text())
     assert f"{seed0:.6f}" == promised.group(1) == "5.408674"
+
+
+def test_a_cuda_trained_model_plays_on_a_cpu_machine():
+    # archive/cuda_e2e: trained, resumed and archived with `--device cuda` on the lent H100
+    # machine (studies/device_plan.py, issue 41), which scored test seed 0 on its own Intel
+    # CPU when archiving. Here, on a CPU-only machine, it loads and plays that seed to the
+    # same number (torch's matrix kernels pinned, as every card's snippet).
+    zip_path = ROOT / "archive" / "cuda_e2e.zip"
+    side = verify(zip_path)
+    assert side["train_config"]["device"] == "cuda" and "Intel" in side["cpu"]
+    assert pinned_card_number(zip_path) == pytest.approx(side["test_seed0_mean_error_cm"], abs=1e-6)

@@ -20,3 +20,27 @@ def test_update_pairs_time_both_updates_on_whole_training_runs(tmp_path):
     assert out.returncode == 0, out.stderr
     assert "pair 1: FastPPO" in out.stdout and "SB3's update" in out.stdout
     assert "median of 1 pairs: FastPPO" in out.stdout and "peak memory" in out.stdout
+
+
+@pytest.mark.slow
+def test_the_device_plan_dry_runs_every_step_and_writes_one_table(tmp_path):
+    # studies/device_plan.py is what ran on the lent H100 machine (issue 41); --small runs every
+    # step here on the CPU with tiny budgets (about 6 minutes on 2 cores).
+    import json
+    import tarfile
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = run_script("studies/device_plan.py", "--small", "--out", tmp_path / "out",
+                     cwd=tmp_path, env={"MUJOCO_GL": "egl"}, timeout=1500)
+    assert out.returncode == 0, out.stderr[-3000:]
+    table = (tmp_path / "out" / "table.md").read_text()
+    assert "`--device cpu` end to end" in table and "| ok |" in table
+    assert "physics-bound limit" in table and "batched env, 256 envs, 2 threads" in table
+    assert table.count("PPO samples/s, ") == 7 and "no figure" not in table.split("quality")[0]
+    assert table.count("(finished); curve") == 2
+    with tarfile.open(tmp_path / "out" / "artifacts.tar.gz") as tar:
+        names = tar.getnames()
+        side = json.load(tar.extractfile("archive/cpu_e2e.json"))
+    assert side["timesteps"] == 2048 and "quality_s2/best_model.zip" in names
+    assert not list((root / "archive").glob("cpu_e2e.*"))  # a dry run leaves the archive as it was

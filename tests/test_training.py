@@ -57,6 +57,25 @@ def test_reference_hparams_is_a_starting_point_that_flags_override():
     assert (args.n_envs, args.n_steps, args.learning_rate) == (4, 1024, 3e-4)
 
 
+def test_a_cuda_device_picks_the_gpu_profile_and_flags_still_override(tmp_path):
+    from panda_lead.training.config import PROFILES
+
+    gpu, default = PROFILES["gpu"], parse_args([])
+    assert default.profile == "cpu" and (default.n_envs, default.device) == (32, "cpu")
+    for argv in (["--device", "cuda"], ["--profile", "gpu"], ["--device=cuda:0", "--preset", "v5"]):
+        args = parse_args(argv)
+        assert args.profile == "gpu"
+        assert (args.n_envs, args.batch_size) == (gpu["n_envs"], gpu["batch_size"]) != (32, 1024)
+    assert parse_args(["--device=cuda:0"]).device == "cuda:0"
+    assert parse_args(["--device", "cuda", "--n-envs", "64"]).n_envs == 64
+    kept = parse_args(["--device", "cuda", "--profile", "cpu"])
+    assert (kept.profile, kept.device, kept.n_envs, kept.batch_size) == ("cpu", "cuda", 32, 1024)
+    with pytest.raises(UserError, match="--profile must be one of"):
+        parse_args(["--profile", "tpu"])
+    with pytest.raises(UserError, match="--profile changes what a run learns"):
+        parse_args(["--resume", str(tmp_path), "--profile", "gpu"])
+
+
 @pytest.mark.parametrize("study, preset", [("err_delayed", "err_delayed"),
                                            ("v5_err_decay_wide_lr3e-4", "v5_err_decay_wide_slow")])
 def test_a_preset_names_exactly_what_a_flag_trained_study_ran(study, preset):
