@@ -71,20 +71,14 @@ class Args:
     8192"."""
 
 
-def parse() -> Args:
-    # stdlib only: this runs before the wheels that bring tyro are installed
-    import argparse
-
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--out", type=Path, default=Args.out)
-    p.add_argument("--wheels", type=Path)
-    p.add_argument("--small", action="store_true")
-    p.add_argument("--quality-steps", type=int, default=Args.quality_steps)
-    p.add_argument("--quality-limit-s", type=int, default=Args.quality_limit_s)
-    p.add_argument("--quality-only", action="store_true")
-    p.add_argument("--quality-flags", default="")
-    p.add_argument("--test-quality", action="store_true")
-    return Args(**vars(p.parse_args()))
+def wheels_given(argv: list[str]) -> Path | None:
+    """--wheels, read before tyro exists: on the device tyro is one of the wheels."""
+    for i, a in enumerate(argv):
+        if a == "--wheels" and i + 1 < len(argv):
+            return Path(argv[i + 1])
+        if a.startswith("--wheels="):
+            return Path(a.split("=", 1)[1])
+    return None
 
 
 class Log:
@@ -98,7 +92,7 @@ class Log:
         self.file.write(text + "\n")
 
 
-def install_wheels(wheels: Path, log: Log) -> None:
+def install_wheels(wheels: Path) -> None:
     cmd = [sys.executable, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile",
            "--no-cache-dir", "--upgrade", "--target", str(SITE), *map(str, sorted(wheels.glob("*.whl")))]
     subprocess.run(cmd, check=True)
@@ -107,7 +101,8 @@ def install_wheels(wheels: Path, log: Log) -> None:
     trimmed = wheels / "gymnasium_robotics"
     if trimmed.is_dir():
         shutil.copytree(trimmed, SITE / "gymnasium_robotics", dirs_exist_ok=True)
-    log(f"installed {len(list(wheels.glob('*.whl')))} wheels into {SITE}")
+    sys.path.insert(0, str(SITE))
+    print(f"installed {len(list(wheels.glob('*.whl')))} wheels into {SITE}", flush=True)
 
 
 def child_env() -> dict:
@@ -231,14 +226,18 @@ def test_quality() -> None:
 
 
 def main() -> None:
-    args = parse()
+    t_start = time.perf_counter()
+    wheels = wheels_given(sys.argv[1:])
+    if wheels:
+        install_wheels(wheels)
+    sys.path.insert(0, str(REPO))  # the device has no installed panda_lead: the checkout's
+    from panda_lead.errors import parse_cli
+
+    args = parse_cli(Args, description=__doc__)
     if args.test_quality:
         return test_quality()
     args.out.mkdir(parents=True, exist_ok=True)
     log = Log(args.out / "log.txt")
-    t_start = time.perf_counter()
-    if args.wheels:
-        install_wheels(args.wheels, log)
     info = machine(log)
     log(f"machine: {info}")
     cuda = "cuda" if info.get("gpu") else "cpu"  # the dry run has no GPU: the same steps on cpu
@@ -359,7 +358,8 @@ def quality(args, log, work, cuda, cores, small, row, artifacts) -> None:
         status = results[seed][0]
         if curve:
             best = min(e for _, e in curve)
-            row(f"quality, gpu profile {args.quality_flags}, seed {seed} (evaluation set, "
+            named = f"gpu profile {args.quality_flags}".strip()
+            row(f"quality, {named}, seed {seed} (evaluation set, "
                 f"every {every:,} steps)",
                 f"best {best:.2f} cm, last {curve[-1][1]:.2f} cm at {curve[-1][0]:,} steps "
                 f"({'finished' if status == 0 else 'cut at the time limit'}); curve "

@@ -91,7 +91,8 @@ def describe_profile(args: TrainArgs) -> str:
 def run(argv: list[str], prog: str = "train.py") -> None:
     description = f"{__doc__}\nPresets:\n{preset_table()}"
     args = parse_args(argv, prog=prog, description=description)
-    print(describe_profile(args), flush=True)
+    if args.profile != "cpu" or args.device != "cpu":  # say which one a CUDA run trains with
+        print(describe_profile(args), flush=True)
     # After the command line is checked: the loop imports torch and stable-baselines3 (~5 s).
     from ..training.loop import TrainingInterrupted, train
 
