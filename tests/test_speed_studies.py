@@ -42,5 +42,7 @@ def test_the_device_plan_dry_runs_every_step_and_writes_one_table(tmp_path):
     with tarfile.open(tmp_path / "out" / "artifacts.tar.gz") as tar:
         names = tar.getnames()
         side = json.load(tar.extractfile("archive/cpu_e2e.json"))
-    assert side["timesteps"] == 2048 and "quality_s2/best_model.zip" in names
+    assert side["name"] == "cpu_e2e" and side["train_config"]["device"] == "cpu"
+    assert "=== e2e_resume_archive: exit 0" in (tmp_path / "out" / "log.txt").read_text()
+    assert "archive/cpu_e2e.zip" in names and "quality_s2/best_model.zip" in names
     assert not list((root / "archive").glob("cpu_e2e.*"))  # a dry run leaves the archive as it was
