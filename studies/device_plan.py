@@ -113,26 +113,13 @@ def child_env() -> dict:
     return env
 
 
-def tree_pss_mb(pid: int) -> float:
-    """PSS of a process and its descendants (shared pages counted once; Linux /proc)."""
-    total, stack = 0, [pid]
-    while stack:
-        p = stack.pop()
-        try:
-            with open(f"/proc/{p}/smaps_rollup") as f:
-                total += next(int(line.split()[1]) for line in f if line.startswith("Pss:"))
-            with open(f"/proc/{p}/task/{p}/children") as f:
-                stack.extend(int(c) for c in f.read().split())
-        except (OSError, StopIteration):
-            continue
-    return total / 1024
-
-
 def run_step(name: str, cmd: list[str], limit_s: float, log: Log, cpus: set[int] | None = None
              ) -> tuple[int | None, float, float, str]:
     """Run one command with a time limit (on the cores ``cpus`` only, if given): (exit status or
     None when killed at the limit, wall s, peak PSS MB, its output). Its output goes to the log
     as it comes."""
+    from bench import _tree_pss_mb as tree_pss_mb  # (studies/ is this script's folder)
+
     log(f"\n=== {name}: {' '.join(cmd)} (limit {limit_s:.0f} s"
         + (f", cores {min(cpus)}-{max(cpus)})" if cpus else ")"))
     t = time.perf_counter()
