@@ -61,6 +61,10 @@ class Args:
     """Time limit of the quality runs (both run at once); a run cut short reports its curve."""
     quality_only: bool = False
     """Only step 5 (a second call on the machine, for another candidate's quality)."""
+    curves: bool = False
+    """Here, after the device: the quality runs' evaluation curves (their progress.csv, kept in
+    results/bench/device_2026-11-26/) against the 2-core default's five seeds on the same
+    250k-step grid: best error by 3M and 5M steps, steps to 2.5 cm; markdown to stdout."""
     test_quality: bool = False
     """Here, after the device: play the gpu profile's quality models (archive/seeds/
     gpu_profile_5m_s1/s2.zip, brought back from the machine) on the 1,000 test seeds and pair
@@ -181,7 +185,6 @@ def test_quality() -> None:
     """The --test-quality table (see Args.test_quality)."""
     import numpy as np
 
-    sys.path.insert(0, str(REPO / "studies"))
     from panda_lead import harness
     from panda_lead.metrics.stats import paired_ci
     from panda_lead.summaries import read_json
@@ -212,6 +215,36 @@ def test_quality() -> None:
           f"{max(means):.2f} cm (mean {np.mean(means):.2f}).")
 
 
+def quality_curves() -> None:
+    """The --curves table (see Args.curves)."""
+    from panda_lead.summaries import read_json
+
+    def grid(curve):  # the 2-core runs evaluated every 50,016 steps: every fifth is the grid
+        return [(t, e) for t, e in curve if (t // 50_016) % 5 == 0]
+
+    def row(name: str, curves: list) -> str:
+        by3 = ", ".join(f"{min(e for t, e in c if t <= 3.01e6):.2f}" for c in curves)
+        by5 = ", ".join(f"{min(e for _, e in c):.2f}" if c[-1][0] > 4.7e6 else "-" for c in curves)
+        hit = ", ".join(next((f"{t / 1e6:.2f}M" for t, e in c if e < 2.5), "-") for c in curves)
+        return f"| {name} | {by3} | {by5} | {hit} |"
+
+    runs = REPO / "results" / "runs" / "curriculum_5m"
+    cpu = [grid(read_json(f, "a run summary")["eval_curve"]) for f in sorted(runs.glob("seed_*.json"))]
+    print("Evaluation-set error (cm) on a 250k-step grid, per training seed. "
+          "`uv run studies/device_plan.py --curves`\n")
+    print("| configuration | best by 3M steps | best by 5M | steps to 2.5 cm |\n|---|---|---|---|")
+    print(row("2-core default (curriculum_5m, seeds 1-5)", cpu))
+    for name, stem in (("128 envs x 128, batch 4,096 (seeds 1, 2)", "gpu128_b4096"),
+                       ("gpu profile: 256 envs x 128, batch 8,192 (seeds 1, 2)", "gpu256_b8192")):
+        curves = []
+        for seed in (1, 2):
+            kept = REPO / "results" / "bench" / "device_2026-11-26" / f"{stem}_s{seed}_progress.csv"
+            with open(kept) as f:
+                curves.append([(int(float(r["eval/timesteps"])), float(r["eval/mean_error_cm"]))
+                               for r in csv.DictReader(f) if r.get("eval/mean_error_cm")])
+        print(row(name, curves))
+
+
 def main() -> None:
     t_start = time.perf_counter()
     wheels = wheels_given(sys.argv[1:])
@@ -223,6 +256,8 @@ def main() -> None:
     args = parse_cli(Args, description=__doc__)
     if args.test_quality:
         return test_quality()
+    if args.curves:
+        return quality_curves()
     args.out.mkdir(parents=True, exist_ok=True)
     log = Log(args.out / "log.txt")
     info = machine(log)
