@@ -160,3 +160,107 @@ def test_a_run_is_bit_reproducible_and_the_same_as_sb3s_update(tmp_path):
     assert len(moments) == len(sb3_moments) > 0
     for a, b, c in zip(moments, again_moments, sb3_moments, strict=True):
         assert torch.equal(a, b) and torch.equal(a, c)
+
+
+# CAPS's smoothness terms (issue 36): off by default (the tests above hold FastPPO to SB3 at
+# the default), on they pair each observation with the next one of its episode and shape the
+# policy's mean action.
+
+def _caps_model(**caps):
+    """A model whose collected rollout spans an episode's end: 30-step episodes, 64 steps."""
+    torch.set_num_threads(1)
+    vec = make_vec_env({"episode_steps": 30}, 3, 0, "batched", 1)
+    config = TrainConfig(n_envs=3, n_steps=64, batch_size=64, n_epochs=3, seed=3, **caps)
+    model = build_ppo(config, vec)
+    model.learn(64 * 3)  # one rollout and update, then a fresh rollout (unflattened)
+    from stable_baselines3.common.callbacks import CallbackList
+
+    cb = CallbackList([])
+    cb.init_callback(model)
+    model.collect_rollouts(model.env, cb, model.rollout_buffer, n_rollout_steps=64)
+    return model, vec
+
+
+def test_caps_pairs_each_observation_with_the_next_of_its_episode():
+    model, vec = _caps_model(caps_temporal=1.0)
+    try:
+        buf = model.rollout_buffer
+        steps_first = np.array(buf.observations)  # (n_steps, n_envs, obs_dim), before flattening
+        starts = np.array(buf.episode_starts)
+        successor, has_next = (t.numpy() for t in model._successors())
+    finally:
+        vec.close()
+    n_steps, n_envs = starts.shape
+    assert starts[1:].sum() >= n_envs  # the rollout crosses resets (30-step episodes)
+    flat = steps_first.swapaxes(0, 1).reshape(n_steps * n_envs, -1)
+    for env in range(n_envs):
+        for step in range(n_steps):
+            i = env * n_steps + step
+            expect = step < n_steps - 1 and not starts[step + 1, env]
+            assert bool(has_next[i]) == expect, (env, step)
+            if expect:
+                assert np.array_equal(flat[successor[i]], steps_first[step + 1, env])
+
+
+def _smoothness(model, buf):
+    """The two quantities CAPS penalises, on the rollout ``buf`` (unflattened): the mean
+    squared change of the mean action to the next observation, and under the spatial term's
+    noise."""
+    obs = torch.as_tensor(np.array(buf.observations).swapaxes(0, 1))
+    starts = np.array(buf.episode_starts).swapaxes(0, 1)
+    n_envs, n_steps, dim = obs.shape
+    obs = obs.reshape(-1, dim)
+    with torch.no_grad():
+        mean = model._mean_action(obs)
+        gen = torch.Generator().manual_seed(0)
+        noisy = obs + model.caps_sigma * torch.randn(obs.shape, generator=gen)
+        spatial = ((mean - model._mean_action(noisy)) ** 2).mean().item()
+    mean = mean.reshape(n_envs, n_steps, -1)
+    keep = torch.as_tensor(starts[:, 1:] == 0)
+    temporal = ((mean[:, 1:] - mean[:, :-1]) ** 2).mean(dim=-1)[keep].mean().item()
+    return temporal, spatial
+
+
+@pytest.mark.parametrize("term", ["temporal", "spatial"])
+def test_caps_terms_make_the_policy_smoother_than_ppo_alone(term):
+    """From the same weights, rollout and random state, an update with the term weighted
+    heavily leaves the policy's mean action smoother on the rollout than PPO's update alone,
+    and logs the term."""
+    model, vec = _caps_model()
+    try:
+        state = (copy.deepcopy(model.policy.state_dict()),
+                 copy.deepcopy(model.policy.optimizer.state_dict()),
+                 copy.deepcopy(model.rollout_buffer), np.random.get_state(), model._n_updates)
+        results = {}
+        for weight in (0.0, 1e4):
+            setattr(model, f"caps_{term}", weight)
+            torch.manual_seed(0)
+            _, _, logs, _ = _update(model, FastPPO.train, state, True)
+            results[weight] = (_smoothness(model, state[2]), logs)
+    finally:
+        vec.close()
+    index = 0 if term == "temporal" else 1
+    assert results[1e4][0][index] < 0.5 * results[0.0][0][index]
+    assert "train/caps_temporal" not in results[0.0][1]  # off: SB3's logs, nothing added
+    assert results[1e4][1][f"train/caps_{term}"] > 0
+
+
+def test_caps_needs_the_fast_update_and_sane_weights():
+    from panda_lead.errors import UserError
+
+    with pytest.raises(UserError, match="need the fast update"):
+        TrainConfig(caps_temporal=0.1, fast_update=False)
+    for bad in (dict(caps_spatial=-1.0), dict(caps_temporal=float("nan")),
+                dict(caps_sigma=0.0)):
+        with pytest.raises(UserError, match="caps"):
+            TrainConfig(**bad)
+
+
+def test_caps_outside_the_fast_path_is_an_error_not_a_silent_drop():
+    model, vec = _collected(clip_range_vf=0.2)  # outside the fast path: SB3's train()
+    try:
+        model.caps_temporal = 0.5
+        with pytest.raises(ValueError, match="CAPS"):
+            model.train()
+    finally:
+        vec.close()

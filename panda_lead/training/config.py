@@ -76,6 +76,17 @@ class TrainConfig:
     """Run PPO's update through training/fast_ppo.py's FastPPO: SB3's update, bit-identical
     (tests/test_fast_ppo.py), with fewer Python-level operations per minibatch; off: SB3's PPO
     as it comes (docs/performance.md, "Profile of one training iteration")."""
+    caps_temporal: float = 0.0
+    """CAPS temporal smoothness weight (issue 36; needs the fast update): PPO's loss plus this
+    x the mean squared change of the policy's mean action between consecutive observations of
+    an episode (training/fast_ppo.py). 0: off, PPO as SB3 runs it."""
+    caps_spatial: float = 0.0
+    """CAPS spatial smoothness weight: PPO's loss plus this x the mean squared change of the
+    mean action under Gaussian noise of --caps-sigma on the observation. 0: off."""
+    caps_sigma: float = 0.05
+    """Standard deviation of the spatial term's observation noise, in observation units (each
+    feature divided by its config.OBS_SCALE: 0.05 is 5 cm on a position, 2.5 mm on the tip
+    error, 0.125 m/s on a velocity)."""
     eval_freq: int = 50_000
     """Evaluate on the fixed evaluation set every this many total steps (0: never)."""
     eval_steps: int = 500
@@ -123,7 +134,10 @@ class TrainConfig:
                                       ("learning_rate", 0, 1, True),
                                       ("clip_range", 0, math.inf, True),
                                       ("ent_coef", 0, math.inf, False),
-                                      ("log_std_init", -math.inf, math.inf, False)):
+                                      ("log_std_init", -math.inf, math.inf, False),
+                                      ("caps_temporal", 0, math.inf, False),
+                                      ("caps_spatial", 0, math.inf, False),
+                                      ("caps_sigma", 0, math.inf, True)):
             v = getattr(self, name)
             ok = isinstance(v, int | float) and math.isfinite(v) and v <= hi and (
                 v > lo if lo_open else v >= lo)
@@ -134,6 +148,9 @@ class TrainConfig:
             set_(name, float(v))
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
+        if (self.caps_temporal or self.caps_spatial) and not self.fast_update:
+            raise UserError("--caps-temporal and --caps-spatial need the fast update (FastPPO): "
+                            "drop --no-fast-update")
         if self.lr_schedule not in ("constant", "linear"):
             raise UserError(f"--lr-schedule must be constant or linear, got {self.lr_schedule!r}")
         if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1

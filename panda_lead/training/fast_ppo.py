@@ -26,6 +26,14 @@ steps, gradient clipping, Adam, the KL early stop. tests/test_fast_ppo.py holds 
 Anything outside the default shape (discrete or non-Gaussian actions, gSDE, a clipped value
 function, dict observations, a custom rollout buffer) runs SB3's own `train()`. Deleting this
 file and constructing `PPO` instead (`--no-fast-update`) is the whole rollback.
+
+One addition, off by default (issue 36): CAPS's smoothness regularisers (Mysore et al., "Regularizing
+Action Policies for Smooth Control with Reinforcement Learning", ICRA 2021) on the policy's mean
+action, added to PPO's loss: temporal, ``caps_temporal`` x the mean squared change of the mean
+action between an observation and the next one of the same episode in the rollout; spatial,
+``caps_spatial`` x its mean squared change under Gaussian noise of ``caps_sigma`` on the
+observation. Smoothness then shapes the policy's mapping, not its reward: a reward penalty on
+the action's change (`w_action_change`) also pays the policy to be late.
 """
 
 from __future__ import annotations
@@ -52,9 +60,16 @@ class FastPPO(PPO):
     ``update_threads``: torch threads during the update (the batched env is idle then), the
     process's own count restored after it; None: leave the count alone."""
 
-    def __init__(self, *args, update_threads: int | None = None, **kwargs):
+    def __init__(self, *args, update_threads: int | None = None, caps_temporal: float = 0.0,
+                 caps_spatial: float = 0.0, caps_sigma: float = 0.05, **kwargs):
         self.update_threads = update_threads
+        self.caps_temporal, self.caps_spatial, self.caps_sigma = (caps_temporal, caps_spatial,
+                                                                  caps_sigma)
         super().__init__(*args, **kwargs)
+
+    @property
+    def _caps(self) -> bool:
+        return bool(self.caps_temporal or self.caps_spatial)
 
     def _fast_path_applies(self) -> bool:
         p = self.policy
@@ -65,10 +80,11 @@ class FastPPO(PPO):
                 and not p.use_sde and p.share_features_extractor
                 and self.clip_range_vf is None)
 
-    def _evaluate_actions(self, obs: th.Tensor, actions: th.Tensor):
+    def _evaluate_actions(self, obs: th.Tensor, actions: th.Tensor, with_mean: bool = False):
         """SB3's ActorCriticPolicy.evaluate_actions for a diagonal Gaussian, operation for
         operation (DiagGaussianDistribution.proba_distribution, then torch's Normal.log_prob,
-        the value head, Normal.entropy, in that order), minus the Distribution objects."""
+        the value head, Normal.entropy, in that order), minus the Distribution objects.
+        ``with_mean``: also the mean action (for the CAPS terms)."""
         p = self.policy
         features = p.features_extractor(preprocess_obs(obs, p.observation_space,
                                                        normalize_images=p.normalize_images))
@@ -80,7 +96,43 @@ class FastPPO(PPO):
                     - _LOG_SQRT_2PI).sum(dim=1)
         values = p.value_net(latent_vf)
         entropy = (_HALF_LOG_2PI_E + th.log(scale)).sum(dim=1)
+        if with_mean:
+            return values, log_prob, entropy, mean_actions
         return values, log_prob, entropy
+
+    def _mean_action(self, obs: th.Tensor) -> th.Tensor:
+        p = self.policy
+        features = p.features_extractor(preprocess_obs(obs, p.observation_space,
+                                                       normalize_images=p.normalize_images))
+        return p.action_net(p.mlp_extractor.forward_actor(features))
+
+    def _successors(self) -> tuple[th.Tensor, th.Tensor]:
+        """For each flat buffer index, the index of the next observation of the same env and
+        episode, and whether there is one (not at the rollout's last step, not across a
+        reset). Flat index = env x n_steps + step, as swap_and_flatten lays them out."""
+        buf = self.rollout_buffer
+        n_steps, n_envs = buf.buffer_size, buf.n_envs
+        n = n_steps * n_envs
+        following = np.minimum(np.arange(n) + 1, n - 1)
+        step = np.tile(np.arange(n_steps), n_envs)
+        starts = np.asarray(buf.episode_starts).swapaxes(0, 1).reshape(-1)
+        valid = (step < n_steps - 1) & (starts[following] == 0)
+        return (th.as_tensor(following, device=self.device),
+                th.as_tensor(valid, dtype=th.float32, device=self.device))
+
+    def _caps_losses(self, obs: th.Tensor, mean: th.Tensor, next_obs: th.Tensor,
+                     has_next: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """CAPS's temporal and spatial terms for one minibatch: mean squared differences of
+        the mean action, per action dimension (zero when the weight is 0)."""
+        zero = mean.new_zeros(())
+        temporal = spatial = zero
+        if self.caps_temporal:
+            diff = ((mean - self._mean_action(next_obs)) ** 2).mean(dim=1)
+            temporal = (diff * has_next).sum() / has_next.sum().clamp(min=1.0)
+        if self.caps_spatial:
+            noisy = obs + self.caps_sigma * th.randn_like(obs)
+            spatial = ((mean - self._mean_action(noisy)) ** 2).mean()
+        return temporal, spatial
 
     def _flat_tensors(self) -> dict[str, th.Tensor]:
         """The buffer's arrays flattened as RolloutBuffer.get flattens them (in place, once per
@@ -108,6 +160,9 @@ class FastPPO(PPO):
 
     def _train(self) -> None:
         if not self._fast_path_applies():
+            if self._caps:  # SB3's train() has no CAPS terms: never drop them silently
+                raise ValueError("the CAPS terms need FastPPO's update (a diagonal Gaussian "
+                                 "policy on Box spaces, no gSDE)")
             return super().train()
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
@@ -117,6 +172,9 @@ class FastPPO(PPO):
         # SB3: batch_size None in get() means the whole buffer; PPO always passes its own.
         batch = self.batch_size
         pg_losses, value_losses, entropy_losses, clip_fractions = [], [], [], []
+        caps_t, caps_s = [], []
+        if self._caps:
+            successor, has_successor = self._successors()
         params = list(self.policy.parameters())
         continue_training = True
         for epoch in range(self.n_epochs):
@@ -124,10 +182,17 @@ class FastPPO(PPO):
             # The one random draw of RolloutBuffer.get, from the same stream.
             order = th.as_tensor(np.random.permutation(n), device=self.device)
             epoch_data = {name: t[order] for name, t in flat.items()}
+            if self._caps:
+                epoch_data["next_observations"] = flat["observations"][successor[order]]
+                epoch_data["has_next"] = has_successor[order]
             for start in range(0, n, batch):
                 mb = {name: t[start:start + batch] for name, t in epoch_data.items()}
-                values, log_prob, entropy = self._evaluate_actions(mb["observations"],
-                                                                   mb["actions"])
+                if self._caps:
+                    values, log_prob, entropy, mean = self._evaluate_actions(
+                        mb["observations"], mb["actions"], with_mean=True)
+                else:
+                    values, log_prob, entropy = self._evaluate_actions(mb["observations"],
+                                                                       mb["actions"])
                 values = values.flatten()
                 advantages = mb["advantages"]
                 if self.normalize_advantage and len(advantages) > 1:
@@ -139,6 +204,12 @@ class FastPPO(PPO):
                 value_loss = F.mse_loss(mb["returns"], values)
                 entropy_loss = -th.mean(entropy)
                 loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
+                if self._caps:
+                    temporal, spatial = self._caps_losses(mb["observations"], mean,
+                                                          mb["next_observations"], mb["has_next"])
+                    loss = loss + self.caps_temporal * temporal + self.caps_spatial * spatial
+                    caps_t.append(temporal.detach())
+                    caps_s.append(spatial.detach())
                 with th.no_grad():
                     pg_losses.append(policy_loss.detach())
                     clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
@@ -162,6 +233,9 @@ class FastPPO(PPO):
                 break
         self._record(pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
                      loss, clip_range)
+        if self._caps:
+            self.logger.record("train/caps_temporal", float(th.stack(caps_t).mean()) if caps_t else 0.0)
+            self.logger.record("train/caps_spatial", float(th.stack(caps_s).mean()) if caps_s else 0.0)
 
     def _record(self, pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
                 loss, clip_range) -> None:
@@ -207,6 +281,9 @@ def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None 
                          log_std_init=config.log_std_init)
     if fast:
         ppo["update_threads"] = update_threads
+        ppo.update(caps_temporal=getattr(config, "caps_temporal", 0.0),
+                   caps_spatial=getattr(config, "caps_spatial", 0.0),
+                   caps_sigma=getattr(config, "caps_sigma", 0.05))
         policy_kwargs["optimizer_kwargs"] = dict(eps=1e-5, foreach=True)  # SB3's eps for PPO
     return (FastPPO if fast else PPO)("MlpPolicy", vec, seed=config.seed, device=config.device,
                                       verbose=0, policy_kwargs=policy_kwargs, **ppo)

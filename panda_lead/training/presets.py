@@ -232,6 +232,22 @@ PRESETS.update([
                      random_noise=True, nominal_share=0.5, noisy_ik_target=True,
                      target_filter=True, arm_filter=True, w_action_change=0.1,
                      obs_noise=DEPLOY_NOISE, lead_filter_hz=10.0), lr_schedule="linear"),
+    # ... with smoothness as a policy regulariser instead of a reward term and a filter (CAPS,
+    # training/fast_ppo.py): no action-change penalty, no low-pass on the lead; the mean action
+    # held to small changes between consecutive observations (weight 1) and under 0.05 of
+    # observation noise (weight 10). Both old terms cost precision everywhere (the low-pass lags
+    # every lead 16 ms, the penalty pays the policy to be late); the spatial term aims at what
+    # makes the jerk under noise, the policy's reaction to noisy readings. Weights from the
+    # trained deploy_nominal s3's own figures: per-step mean-action changes 1.9e-3 (mean squared)
+    # and 4.3e-3 under 0.05 of noise (the headline, without noise training: 2.8e-2), so both
+    # terms start near PPO's policy loss (~0.01-0.04).
+    _preset("deploy_caps", "deploy_nominal without the action-change penalty and the lead's "
+            "low-pass, + CAPS smoothness terms on the policy (temporal 1, spatial 10) (25-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
+                     obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
+                     random_noise=True, nominal_share=0.5, noisy_ik_target=True,
+                     target_filter=True, obs_noise=DEPLOY_NOISE),
+            lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
