@@ -248,6 +248,15 @@ PRESETS.update([
                      random_noise=True, nominal_share=0.5, noisy_ik_target=True,
                      target_filter=True, obs_noise=DEPLOY_NOISE),
             lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0),
+    # ... and its control: neither the old smoothing nor CAPS, so that each one's share of the
+    # precision and the jerk is measured, not assumed.
+    _preset("deploy_unsmoothed", "deploy_nominal without the action-change penalty and the "
+            "lead's low-pass, no CAPS either: deploy_caps's control (25-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
+                     obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
+                     random_noise=True, nominal_share=0.5, noisy_ik_target=True,
+                     target_filter=True, obs_noise=DEPLOY_NOISE),
+            lr_schedule="linear"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
