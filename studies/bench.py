@@ -337,7 +337,9 @@ def main() -> None:
 def finish(args: Args, rows: list[tuple[str, str]], cores: int) -> None:
     """Print the rows as a markdown table headed by the command, machine and date."""
     cpu = cpu_model()
-    header = (f"`{shlex.join(['uv', 'run', 'studies/bench.py', *sys.argv[1:]])}` on {cores} cores "
+    # The command as it was launched: `uv run` sets UV; on the device it runs as python3.
+    launcher = ["uv", "run"] if "UV" in os.environ else ["python3"]
+    header = (f"`{shlex.join([*launcher, 'studies/bench.py', *sys.argv[1:]])}` on {cores} cores "
               f"({cpu}), {time.strftime('%Y-%m-%d')}, Python {platform.python_version()}")
     table = "\n".join([header, "", "| figure | value |", "|---|---|",
                        *[f"| {k.strip()} | {v} |" for k, v in rows]])

@@ -27,13 +27,42 @@ def test_the_device_plan_dry_runs_every_step_and_writes_one_table(tmp_path):
     # studies/device_plan.py is what ran on the lent H100 machine (issue 41); --small runs every
     # step here on the CPU with tiny budgets (about 6 minutes on 2 cores).
     import json
+    import os
+    import subprocess
+    import sys
     import tarfile
+    import time
     from pathlib import Path
 
+    import psutil
+
     root = Path(__file__).resolve().parents[1]
-    out = run_script("studies/device_plan.py", "--small", "--out", tmp_path / "out",
-                     cwd=tmp_path, env={"MUJOCO_GL": "egl"}, timeout=1500)
-    assert out.returncode == 0, out.stderr[-3000:]
+    cmd = [sys.executable, str(root / "studies/device_plan.py"), "--small", "--out",
+           str(tmp_path / "out")]
+    seen: dict[int, psutil.Process] = {}  # every descendant: each step runs in its own session,
+    # out of reach of a kill of the plan's group, so they are reaped one by one below
+    with open(tmp_path / "stderr", "w") as err:
+        plan = subprocess.Popen(cmd, cwd=tmp_path, env={**os.environ, "MUJOCO_GL": "egl"},
+                                stdout=subprocess.DEVNULL, stderr=err)
+        try:
+            start = time.monotonic()  # a hang guard, not a speed limit: the plan takes ~6 min
+            while plan.poll() is None and time.monotonic() - start < 1500:
+                try:
+                    for child in psutil.Process(plan.pid).children(recursive=True):
+                        seen.setdefault(child.pid, child)
+                except psutil.Error:
+                    pass  # a child that ended between the listing and the read
+                time.sleep(0.5)
+        finally:
+            if plan.poll() is None:
+                plan.kill()
+            for proc in seen.values():  # psutil checks each is still the process it saw
+                try:
+                    proc.kill()
+                except psutil.Error:
+                    pass  # already gone
+            plan.wait()
+    assert plan.returncode == 0, (tmp_path / "stderr").read_text()[-3000:]
     table = (tmp_path / "out" / "table.md").read_text()
     assert "`--device cpu` end to end" in table and "| ok |" in table
     assert "physics-bound limit" in table and "batched env, 256 envs, 2 threads" in table

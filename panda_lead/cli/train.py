@@ -52,8 +52,7 @@ def parse_args(argv: list[str], prog: str | None = None, description: str | None
     if known.reference_hparams:
         base = dataclasses.replace(base, **REFERENCE_HPARAMS)
     profile = machine_profile(known.profile, known.device, bool(known.resume))
-    if profile != "cpu":
-        base = dataclasses.replace(base, **PROFILES[profile])
+    base = dataclasses.replace(base, **PROFILES[profile])  # cpu: {}, the defaults as they are
     default = TrainArgs(**{f.name: getattr(base, f.name) for f in dataclasses.fields(TrainConfig)},
                         reference_hparams=known.reference_hparams, profile=profile)
     args = parse_cli(TrainArgs, argv, default=default, prog=prog, description=description)
