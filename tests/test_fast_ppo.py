@@ -264,3 +264,27 @@ def test_caps_outside_the_fast_path_is_an_error_not_a_silent_drop():
             model.train()
     finally:
         vec.close()
+
+
+@pytest.mark.parametrize("deterministic", [False, True])
+def test_the_collection_forward_is_sb3s_bit_for_bit(deterministic):
+    """FastActorCriticPolicy.forward (what collection calls each step) against SB3's
+    ActorCriticPolicy.forward on the same weights, observations and torch stream: the same
+    actions, values and log-probabilities, and the stream left in the same state."""
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    from panda_lead.training.fast_ppo import FastActorCriticPolicy
+
+    model, vec = _collected()
+    vec.close()
+    policy = model.policy
+    assert type(policy) is FastActorCriticPolicy
+    obs = torch.as_tensor(np.array(model.rollout_buffer.observations[:, 0]))  # 64 real ones
+    outputs = []
+    for forward in (ActorCriticPolicy.forward, FastActorCriticPolicy.forward):
+        torch.manual_seed(11)
+        with torch.no_grad():
+            out = forward(policy, obs, deterministic)
+        outputs.append((*out, torch.randn(3)))  # the draw after it: the stream's state
+    for a, b in zip(*outputs, strict=True):
+        assert a.shape == b.shape and torch.equal(a, b)
