@@ -17,6 +17,13 @@ COLLISION_WEIGHT = 100.0
 DEPLOY_NOISE = {"ee_pos": 0.01, "target_pos": 0.01, "ee_vel": 0.1, "target_vel": 0.1,
                 "target_acc": 1.0}
 
+# deploy_nominal's world without its smoothing (the action-change penalty and the lead's
+# low-pass): what deploy_caps and its control deploy_unsmoothed train in.
+DEPLOY_UNSMOOTHED_ENV = dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
+                             obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
+                             random_noise=True, nominal_share=0.5, noisy_ik_target=True,
+                             target_filter=True, obs_noise=DEPLOY_NOISE)
+
 
 def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
     env = EnvConfig(**kw.pop("env", {}))
@@ -243,19 +250,13 @@ PRESETS.update([
     # terms start near PPO's policy loss (~0.01-0.04).
     _preset("deploy_caps", "deploy_nominal without the action-change penalty and the lead's "
             "low-pass, + CAPS smoothness terms on the policy (temporal 1, spatial 10) (25-D)",
-            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
-                     obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
-                     random_noise=True, nominal_share=0.5, noisy_ik_target=True,
-                     target_filter=True, obs_noise=DEPLOY_NOISE),
+            env=DEPLOY_UNSMOOTHED_ENV,
             lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0),
     # ... and its control: neither the old smoothing nor CAPS, so that each one's share of the
     # precision and the jerk is measured, not assumed.
     _preset("deploy_unsmoothed", "deploy_nominal without the action-change penalty and the "
             "lead's low-pass, no CAPS either: deploy_caps's control (25-D)",
-            env=dict(obs_features=OBS_15 + ("tip_error", "prev_action", "installation"),
-                     obs_delay=3, action_delay=3, target_delay=3, random_delay=True,
-                     random_noise=True, nominal_share=0.5, noisy_ik_target=True,
-                     target_filter=True, obs_noise=DEPLOY_NOISE),
+            env=DEPLOY_UNSMOOTHED_ENV,
             lr_schedule="linear"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
