@@ -258,6 +258,13 @@ PRESETS.update([
             "lead's low-pass, no CAPS either: deploy_caps's control (25-D)",
             env=DEPLOY_UNSMOOTHED_ENV,
             lr_schedule="linear"),
+    # ... deploy_caps with the Kalman filter on the tip's readings too (arm_filter): the pilot
+    # of deploy_caps (seed 3) was 0.2-0.3 cm more precise than deploy_nominal in most rows but
+    # jerkier under noise (1,281 m/s^3 at 1 cm against 938), and on deploy_nominal the same
+    # filter took the jerk at 1 cm from 938 to 727 for 0.15-0.47 cm of precision.
+    _preset("deploy_caps_armfilter", "deploy_caps + the Kalman filter on the tip's readings "
+            "(25-D)", env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True), lr_schedule="linear",
+            caps_temporal=1.0, caps_spatial=10.0),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
