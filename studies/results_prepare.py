@@ -20,7 +20,8 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "v5_err_decay_wide_lr3e-4", "joint_5m", "curriculum_5m", "v9_5m", "ikfree_50m",
               "deploy_lowpass_5m", "preview_5m", "deploy_real_5m", "deploy_kalman_5m",
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
-              "preview_feedforward_settled_5m", "deploy_armfilter_5m"]
+              "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
+              "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m"]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
@@ -38,7 +39,9 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
                           "deploy_nominal_5m", "preview_feedforward_5m",
-                          "preview_feedforward_settled_5m", "deploy_armfilter_5m")}}
+                          "preview_feedforward_settled_5m", "deploy_armfilter_5m",
+                          "deploy_caps_5m", "deploy_unsmoothed_5m",
+                          "deploy_caps_armfilter_5m")}}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m"]

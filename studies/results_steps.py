@@ -235,6 +235,22 @@ def table_steps() -> list[Step]:
                       ("studies/deploy.py", "--models", *pair, "--seeds", "0-99",
                        "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
                        "targetnoise1", "noise2", "--out", "{dir}"), tuple(pair), section="all"))
+    # smoothness as a policy regulariser (CAPS) instead of the reward term and the low-pass,
+    # and its control without either (pilots, training seed 3), against deploy_nominal
+    # and CAPS with the filter on the tip's readings too
+    steps += [_report("deploy_caps_5m"), _report("deploy_unsmoothed_5m"),
+              _report("deploy_caps_armfilter_5m"),
+              _compare("deploy_caps_5m", "deploy_nominal_5m"),
+              _compare("deploy_unsmoothed_5m", "deploy_nominal_5m"),
+              _compare("deploy_caps_5m", "deploy_unsmoothed_5m"),
+              _compare("deploy_caps_armfilter_5m", "deploy_caps_5m")]
+    caps = [f"{a}seeds/{s}_5m_s3.zip" for s in ("deploy_nominal", "deploy_unsmoothed",
+                                                 "deploy_caps", "deploy_caps_armfilter")]
+    steps.append(Step(tuple(f"results/studies/deploy_caps_5m/pilot/deploy.{x}"
+                            for x in ("md", "png")),
+                      ("studies/deploy.py", "--models", *caps, "--seeds", "0-99",
+                       "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
+                       "noise2", "--out", "{dir}"), tuple(caps), section="all"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
