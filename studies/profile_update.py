@@ -2,6 +2,7 @@
 
     uv run studies/profile_update.py                  # SB3's PPO against FastPPO, 3 pairs
     uv run studies/profile_update.py --pairs 5 --iterations 6
+    uv run studies/profile_update.py --variants fast --cprofile 2   # where a sample's time goes
 
 Times PPO iterations of the repo default (TrainConfig(): 32 batched envs x 128 steps, batch
 1,024, 10 epochs, one torch thread) with timers around the parts SB3 calls: the env step, the
@@ -52,6 +53,10 @@ class Args:
     update_only: int = 0
     """Only the update: this many rounds of one PPO update (train()) per variant on the same
     collected rollout, interleaved; wall and CPU ms per update, their medians and ratios."""
+    cprofile: int = 0
+    """Only a cProfile: this many PPO iterations of the first variant, the functions with the
+    most own time and those that cost a sample's wall time (MuJoCo's rollout, the env step,
+    the policy's forward, the update), in us per sample."""
 
 
 class Timers:
@@ -189,10 +194,44 @@ def cpu_model_name() -> str:
     return cpu_model()
 
 
+def cprofile(args: Args) -> None:
+    import cProfile
+    import pstats
+
+    model, vec, per_iter = build(args.variants[0], args.quick, Path(tempfile.mkdtemp()))
+    profiler = cProfile.Profile()
+    try:
+        profiler.enable()
+        model.learn(per_iter * args.cprofile, reset_num_timesteps=False)
+        profiler.disable()
+    finally:
+        vec.close()
+    stats = pstats.Stats(profiler)
+    samples = per_iter * args.cprofile
+    print(f"{args.variants[0]}, {args.cprofile} iterations ({samples:,} samples), cProfile on: "
+          f"{stats.total_tt / samples * 1e6:.0f} us wall per sample (cProfile adds its own)")
+    cum = {}
+    for (file, _line, name), (_cc, _nc, _tt, ct, _callers) in stats.stats.items():
+        key = f"{Path(file).name}:{name}"
+        cum[key] = max(cum.get(key, 0.0), ct)
+    rollout = "~:<built-in method mujoco._batch.rollout>"
+    for label, key in (("MuJoCo's batched rollout (physics)", rollout),
+                       ("the env step (task.py)", "task.py:step"),
+                       ("SB3's collection, all", "on_policy_algorithm.py:collect_rollouts"),
+                       ("the policy's forward (collection)", "fast_ppo.py:forward"),
+                       ("the policy's forward (SB3's)", "policies.py:forward"),
+                       ("the update", "fast_ppo.py:train")):
+        if key in cum:
+            print(f"  {label}: {cum[key] / samples * 1e6:.1f} us per sample")
+    stats.sort_stats("tottime").print_stats(15)
+
+
 def main() -> None:
     args = parse_cli(Args, description=__doc__)
     if args.update_only:
         return update_only(args)
+    if args.cprofile:
+        return cprofile(args)
     from bench import bench_physics, cpu_model
 
     cores = os.cpu_count() or 1

@@ -81,12 +81,18 @@ class FastActorCriticPolicy(ActorCriticPolicy):
     operations, same single draw from torch's stream (Normal.rsample's ``normal_``), so the
     actions, values and log-probabilities are bit-identical (tests/test_fast_ppo.py)."""
 
+    def _written_out(self) -> bool:
+        """Whether forward's written-out path fits this policy (decided once: it is built)."""
+        if not hasattr(self, "_fits"):
+            self._fits = (isinstance(self.action_dist, DiagGaussianDistribution)
+                          and not self.use_sde and self.share_features_extractor
+                          and isinstance(self.observation_space, spaces.Box)
+                          and type(self.features_extractor) is FlattenExtractor
+                          and type(self.mlp_extractor) is MlpExtractor)
+        return self._fits
+
     def forward(self, obs: th.Tensor, deterministic: bool = False):
-        if (not isinstance(self.action_dist, DiagGaussianDistribution) or self.use_sde
-                or not self.share_features_extractor
-                or not isinstance(self.observation_space, spaces.Box)
-                or type(self.features_extractor) is not FlattenExtractor
-                or type(self.mlp_extractor) is not MlpExtractor):
+        if not self._written_out():
             return super().forward(obs, deterministic)
         features = preprocess_obs(obs, self.observation_space,
                                   normalize_images=self.normalize_images).flatten(1)
@@ -136,9 +142,7 @@ class FastPPO(PPO):
         the value head, Normal.entropy, in that order), minus the Distribution objects.
         ``with_mean``: also the mean action (for the CAPS terms)."""
         p = self.policy
-        features = p.features_extractor(preprocess_obs(obs, p.observation_space,
-                                                       normalize_images=p.normalize_images))
-        latent_pi, latent_vf = p.mlp_extractor(features)
+        latent_pi, latent_vf = p.mlp_extractor(self._features(obs))
         mean_actions = p.action_net(latent_pi)
         scale = th.ones_like(mean_actions) * p.log_std.exp()
         var = scale**2
@@ -150,11 +154,14 @@ class FastPPO(PPO):
             return values, log_prob, entropy, mean_actions
         return values, log_prob, entropy
 
+    def _features(self, obs: th.Tensor) -> th.Tensor:
+        p = self.policy
+        return p.features_extractor(preprocess_obs(obs, p.observation_space,
+                                                   normalize_images=p.normalize_images))
+
     def _mean_action(self, obs: th.Tensor) -> th.Tensor:
         p = self.policy
-        features = p.features_extractor(preprocess_obs(obs, p.observation_space,
-                                                       normalize_images=p.normalize_images))
-        return p.action_net(p.mlp_extractor.forward_actor(features))
+        return p.action_net(p.mlp_extractor.forward_actor(self._features(obs)))
 
     def _successors(self) -> tuple[th.Tensor, th.Tensor]:
         """For each flat buffer index, the index of the next observation of the same env and
