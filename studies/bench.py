@@ -43,11 +43,20 @@ class Args:
     `--no-fast-update` (SB3's own), --update-steps each, back to back this many times: each
     pair's samples/s, wall ratio and peak memory (PSS, whole process tree), then the medians."""
     update_steps: int = 300_000
-    """Training steps per run of --update-pairs."""
+    """Training steps per run of --update-pairs and --parallel-pairs."""
     env_only: bool = False
     """Only the env's figures (physics, single env, batched env per thread and on every
     thread, the physics-bound limit): no PPO, no memory run (studies/device_plan.py times PPO
     through train.py itself)."""
+    parallel_pairs: int = 0
+    """Only the runs-per-hour figure: `train.py` with its defaults alone, then --parallel-runs
+    copies of it at once (the same flags, other seeds), --update-steps each, this many times:
+    the machine's samples/s over all the runs against one run's (a sweep's --workers)."""
+    parallel_runs: int = 0
+    """Runs at once for --parallel-pairs (0: one per core)."""
+    parallel_flags: str = ""
+    """Extra train.py flags for every run of --parallel-pairs, one string after an =:
+    --parallel-flags="--n-workers 1"."""
     single_pairs: int = 0
     """Only the single env's ratio, the same way: raw physics and a gymnasium.make step (400
     random-action steps, median of 3 each) back to back this many times, each ratio and their
@@ -84,6 +93,47 @@ def update_pairs(count: int, steps: int) -> None:
           f"(range {min(ratios):.3f}-{max(ratios):.3f}); peak memory {fast_mb:,.0f} MB against "
           f"{sb3_mb:,.0f} MB (medians). Wall times include each process's start (torch import, "
           "env build), the same for both.")
+
+
+def _train_cmd(tmp: str, timesteps: int, extra: tuple[str, ...]) -> list[str]:
+    return [sys.executable, str(Path(__file__).resolve().parents[1] / "train.py"), "--timesteps",
+            str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0", *extra]
+
+
+def bench_runs_at_once(runs: int, timesteps: int, extra: tuple[str, ...]) -> float:
+    """Wall s for ``runs`` train.py processes started together (training seeds 1..runs), until
+    the last ends; each run's own wall includes its process start."""
+    with tempfile.TemporaryDirectory() as tmp:
+        t = time.perf_counter()
+        procs = [subprocess.Popen(_train_cmd(tmp, timesteps, (*extra, "--seed", str(k + 1))),
+                                  cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                 for k in range(runs)]
+        try:
+            for proc in procs:
+                if proc.wait() != 0:
+                    raise RuntimeError(f"train.py failed: {proc.stderr.read().decode()[-2000:]}")
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+        return time.perf_counter() - t
+
+
+def parallel_pairs(count: int, runs: int, steps: int, extra: tuple[str, ...]) -> None:
+    """Samples per second of the whole machine: one run alone, then ``runs`` at once (see
+    Args.parallel_pairs)."""
+    ratios = []
+    for i in range(count):
+        alone = bench_runs_at_once(1, steps, extra)
+        together = bench_runs_at_once(runs, steps, extra)
+        ratios.append(runs * alone / together)
+        print(f"pair {i + 1}: one run {steps / alone:,.0f} samples/s ({alone:.1f} s); {runs} at "
+              f"once {runs * steps / together:,.0f} samples/s in all ({together:.1f} s until the "
+              f"last ended): {ratios[-1]:.2f}x the samples per hour", flush=True)
+    print(f"median of {count} pairs: {runs} runs at once give {statistics.median(ratios):.2f}x "
+          f"one run's samples per hour (range {min(ratios):.2f}-{max(ratios):.2f}); flags: "
+          f"{' '.join(extra) or 'the defaults'}. Wall times include each process's start.")
 
 
 def median_time(fn, repeats: int) -> float:
@@ -226,8 +276,7 @@ def bench_memory(timesteps: int, extra: tuple[str, ...] = ()) -> tuple[float, fl
     """Peak memory (MB, PSS) of `train.py` with its defaults (plus ``extra`` flags), whole
     process tree; and wall s."""
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, str(Path(__file__).resolve().parents[1] / "train.py"), "--timesteps",
-               str(timesteps), "--runs-dir", tmp, "--no-progress", "--eval-freq", "0", *extra]
+        cmd = _train_cmd(tmp, timesteps, extra)
         t = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         peak = 0.0
@@ -268,6 +317,9 @@ def main() -> None:
     rows: list[tuple[str, str]] = []
     if args.update_pairs:
         return update_pairs(args.update_pairs, args.update_steps)
+    if args.parallel_pairs:
+        return parallel_pairs(args.parallel_pairs, args.parallel_runs or cores, args.update_steps,
+                              tuple(shlex.split(args.parallel_flags)))
     if args.single_pairs:
         return print_pairs(args.single_pairs, "single env step via gymnasium.make",
                            lambda: (bench_physics(400, 3), bench_single_env(400, 3)))

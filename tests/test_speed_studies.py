@@ -1,4 +1,5 @@
-"""Issue 39's before/after tools: ttq.py's paired candidates and bench.py --update-pairs."""
+"""Issue 39's before/after tools: ttq.py's paired candidates, bench.py --update-pairs and
+--parallel-pairs."""
 
 from __future__ import annotations
 
@@ -20,6 +21,18 @@ def test_update_pairs_time_both_updates_on_whole_training_runs(tmp_path):
     assert out.returncode == 0, out.stderr
     assert "pair 1: FastPPO" in out.stdout and "SB3's update" in out.stdout
     assert "median of 1 pairs: FastPPO" in out.stdout and "peak memory" in out.stdout
+
+
+@pytest.mark.slow
+def test_parallel_pairs_time_one_run_and_several_at_once(tmp_path):
+    out = run_script("studies/bench.py", "--parallel-pairs", "1", "--parallel-runs", "2",
+                     "--update-steps", "256", "--parallel-flags=--n-envs 2 --n-steps 64",
+                     cwd=tmp_path, env={"MUJOCO_GL": "egl"}, timeout=900)
+    assert out.returncode == 0, out.stderr
+    assert "pair 1: one run" in out.stdout and "2 at once" in out.stdout
+    assert "median of 1 pairs: 2 runs at once give" in out.stdout
+    assert "flags: --n-envs 2 --n-steps 64" in out.stdout
+    assert not list(tmp_path.iterdir())  # the runs' folders went with their temporary folder
 
 
 @pytest.mark.slow
