@@ -251,6 +251,15 @@ def table_steps() -> list[Step]:
                       ("studies/deploy.py", "--models", *caps, "--seeds", "0-99",
                        "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
                        "noise2", "--out", "{dir}"), tuple(caps), section="all"))
+    # CAPS with the tip filter grown to five seeds: against deploy_nominal's five (paired by
+    # training seed) and every seed's deployability rows (issue 36's targets, per seed)
+    steps.append(_compare("deploy_caps_armfilter_5m", "deploy_nominal_5m"))
+    caps5 = [f"{a}seeds/deploy_caps_armfilter_5m_s{k}.zip" for k in range(1, 6)]
+    steps.append(Step(tuple(f"results/studies/deploy_caps_armfilter_5m/deploy.{x}"
+                            for x in ("md", "png")),
+                      ("studies/deploy.py", "--models", *caps5, "--seeds", "0-99",
+                       "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
+                       "noise2", "--out", "{dir}"), tuple(caps5), section="all"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
