@@ -63,7 +63,10 @@ class Args:
     eval_freq: int = 50_000
     """Evaluation interval per trial (the pruner sees each evaluation)."""
     workers: int = 1
-    """Trials run in parallel on this machine (each gets cores/workers cores)."""
+    """Trials run in parallel on this machine, each a train.py run as it would run alone. One
+    run keeps about 1.2 cores busy (its MuJoCo threads wait on the policy, the update has one
+    torch thread), so on 2 cores two at a time train 1.7-1.9x the samples per hour
+    (docs/performance.md, "More runs per hour: two at a time on 2 cores")."""
     storage: str | None = None
     """Optuna storage URL (default: sqlite:///sweeps/<name>.db); postgresql://user@host:port/db for
     many machines, the password in PGPASSWORD or ~/.pgpass."""
