@@ -174,12 +174,20 @@ def rank(args: Args) -> None:
           f"{', '.join(sorted(k for k, v in studies.items() if len(v) >= 3)) or 'none'}.")
     summarised = sorted(d.name for d in (ROOT / "results" / "runs").glob("*")
                         if d.is_dir() and any(d.glob("seed_*.json")))
-    kept = {m.stem.rsplit("_s", 1)[0] for m in (ROOT / "archive" / "seeds").glob("*_s*.zip")}
-    unscored = [d for d in summarised if d in kept and len(studies.get(d, [])) < 3]
+    kept_seeds = {m.stem for m in (ROOT / "archive" / "seeds").glob("*_s*.zip")}
+    kept = {m.rsplit("_s", 1)[0] for m in kept_seeds}
+    # a study with a kept seed model not scored yet, and one whose every kept seed is scored
+    # but which has too few of them to be ranked as a study (its models are in the Models table)
+    unscored = sorted({m.rsplit("_s", 1)[0] for m in kept_seeds - set(scores)} & set(summarised))
+    few = [d for d in summarised if d in kept and d not in unscored
+           and len(studies.get(d, [])) < 3]
     unkept = [d for d in summarised if d not in kept]
     if unscored:
         print(f"Kept but not yet scored: {', '.join(unscored)} (`uv run studies/selection.py "
               "score --models archive/seeds/<study>_s*.zip`).")
+    if few:
+        print(f"Scored, fewer than 3 seeds kept (not ranked as studies; their seeds are in the "
+              f"Models tables): {', '.join(few)}.")
     if unkept:
         print(f"Not ranked as studies: their seeds' models were not kept (run folders are "
               f"machine-local; `studies/runs.py keep` archives them): {', '.join(unkept)}. "

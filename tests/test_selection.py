@@ -89,3 +89,34 @@ def test_a_model_that_knows_the_path_is_never_ranked_with_causal_ones(tmp_path, 
     assert "ahead" not in causal
     assert "| 1 | ahead |" in preview
     assert "causal_a" not in preview and "causal_b" not in preview
+
+
+def test_the_rank_tells_an_unscored_kept_seed_from_a_study_with_too_few_seeds(tmp_path,
+                                                                              monkeypatch,
+                                                                              capsys):
+    """A study whose kept seed models are all scored but number under three is not "not yet
+    scored" (the rank said so of deploy_real_5m's two scored seeds until 2026-11-27)."""
+    import json
+
+    selection = _load("selection")
+    root, scores = tmp_path / "repo", tmp_path / "scores"
+    scores.mkdir()
+    (root / "archive" / "seeds").mkdir(parents=True)
+    span = [seeds.SELECT_SEEDS[0], seeds.SELECT_SEEDS[-1]]
+    for study, kept, scored in (("alpha", (1, 2), (1, 2)), ("beta", (1,), ())):
+        (root / "results" / "runs" / study).mkdir(parents=True)
+        (root / "results" / "runs" / study / "seed_1.json").write_text("{}")
+        for k in kept:
+            (root / "archive" / "seeds" / f"{study}_s{k}.zip").write_bytes(b"")
+        for k in scored:
+            (scores / f"{study}_s{k}.json").write_text(json.dumps({
+                "model": f"archive/seeds/{study}_s{k}.zip", "seeds": span, "knows_path": False,
+                "mean_err_cm": [2.0 + k / 10] * 20, "jerk_rms": [500.0] * 20}))
+    monkeypatch.setattr(selection, "ROOT", root)
+    monkeypatch.setattr(selection, "SCORES", scores)
+    selection.rank(selection.Args(command="rank"))
+    out = capsys.readouterr().out
+    unscored = next(line for line in out.splitlines() if line.startswith("Kept but not yet"))
+    few = next(line for line in out.splitlines() if line.startswith("Scored, fewer than 3"))
+    assert "beta" in unscored and "alpha" not in unscored
+    assert "alpha" in few and "beta" not in few
