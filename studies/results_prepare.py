@@ -40,6 +40,9 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
           "deploy_caps_armfilter_5m": ("deploy_caps_armfilter_5m",
                                        ["deploy_caps_armfilter_5m",
                                         "deploy_caps_armfilter_5m_rest"])}
+# archived names chosen by issue 37's rule on the selection set (runs.py choose --by selection);
+# the rest keep the rule they were archived by, the best of 15 evaluation trajectories
+BY_SELECTION = {"deploy_caps_armfilter_5m"}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
@@ -92,7 +95,9 @@ def prepare(root: Path) -> None:
     for name, (study, folders) in CHOSEN.items():
         dirs = [f"sweeps/{f}/runs" for f in folders if (root / f"sweeps/{f}/runs").is_dir()]
         if not (root / f"archive/{name}.zip").exists() and dirs:
-            _run(root, *runs, "choose", "--study", study, "--archive-as", name, "--runs", *dirs)
+            rule = ["--by", "selection"] if name in BY_SELECTION else []
+            _run(root, *runs, "choose", "--study", study, *rule, "--archive-as", name, "--runs",
+                 *dirs)
     for study, pattern in KEPT.items():
         dirs = sorted(glob.glob(f"sweeps/{pattern}/runs", root_dir=root))
         if dirs:

@@ -88,6 +88,11 @@ class Args:
     side may be baseline:<name>, a controller of baselines.json (e.g. baseline:feedforward)."""
     archive_as: str | None = None
     """choose: archive the chosen run's best model under this name (needs its run folder)."""
+    by: Literal["evaluation", "selection"] = "evaluation"
+    """choose: the rule. evaluation: the lowest best error on the 15 evaluation trajectories
+    (every study's archive so far); selection: issue 37's rule on the selection set (every seed
+    scored, `studies/selection.py score`; lowest mean error, the smoother of tied neighbours
+    first), the rule the README states for the headline."""
     force: bool = False
     """Replace existing summaries, baselines or an archived name."""
     bootstrap: int = 10000
@@ -423,12 +428,42 @@ def report(args: Args) -> None:
           f"{chosen['seed']} (best model sha256 {chosen['best_model_sha256'][:12]}).")
 
 
+def choose_by_selection(study: str, runs: list[dict], scores: Path) -> dict:
+    """The seed issue 37's rule ranks first on the selection set: each seed's kept model
+    (archive/seeds/<study>_s<k>) scored in ``scores``, the score of the model kept now."""
+    found, missing = {}, []
+    for s in runs:
+        name = f"{study}_s{s['seed']}"
+        side, score = Path("archive/seeds") / f"{name}.json", scores / f"{name}.json"
+        if not (side.is_file() and score.is_file()):
+            missing.append(name)
+            continue
+        rec = read_json(score, "a selection-set score")
+        if rec.get("model_sha256") != read_json(side, "a kept model's sidecar").get("model_sha256"):
+            raise UserError(f"{score} scored another model than archive/seeds/{name}.zip: "
+                            "score it again (studies/selection.py score --force)")
+        found[name] = (s, rec)
+    if missing:
+        raise UserError(f"--by selection needs every seed kept and scored; not: "
+                        f"{', '.join(missing)} (studies/runs.py keep, then studies/selection.py "
+                        "score --models archive/seeds/<name>.zip)")
+    order = tie_ranked({k: np.asarray(r["mean_err_cm"]) for k, (_, r) in found.items()},
+                       {k: float(np.mean(r["jerk_rms"])) for k, (_, r) in found.items()})
+    return found[order[0][0]][0]
+
+
 def choose(args: Args) -> None:
     runs = load_study(args.study, ("best", "model") if args.archive_as else ("best",))
-    chosen = choose_run(runs)
-    print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}, best "
-          f"evaluation error {chosen['best']['mean_error_cm']:.3f} cm at "
-          f"{chosen['best']['timesteps']:,} steps)")
+    if args.by == "selection":
+        chosen = choose_by_selection(args.study, runs,
+                                     Path("results/studies/rank/scores"))
+        print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}), first "
+              "on the selection set by issue 37's rule (results/studies/rank/scores/)")
+    else:
+        chosen = choose_run(runs)
+        print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}, best "
+              f"evaluation error {chosen['best']['mean_error_cm']:.3f} cm at "
+              f"{chosen['best']['timesteps']:,} steps)")
     if args.archive_as:
         from panda_lead.training.archive import archive_model, check_archive_free
 

@@ -120,3 +120,40 @@ def test_the_rank_tells_an_unscored_kept_seed_from_a_study_with_too_few_seeds(tm
     few = next(line for line in out.splitlines() if line.startswith("Scored, fewer than 3"))
     assert "beta" in unscored and "alpha" not in unscored
     assert "alpha" in few and "beta" not in few
+
+
+def test_choose_by_selection_takes_the_rules_first_seed_and_refuses_a_stale_score(
+        tmp_path, monkeypatch):
+    """`runs.py choose --by selection`: the seed issue 37's rule ranks first on the selection
+    set (lower error; of two tied seeds the smoother), only from scores of the models kept now."""
+    import json
+
+    import pytest
+
+    from panda_lead.errors import UserError
+
+    runs = _load("runs")
+    monkeypatch.chdir(tmp_path)
+    kept, scores = tmp_path / "archive" / "seeds", tmp_path / "scores"
+    kept.mkdir(parents=True)
+    scores.mkdir()
+    def put(seed: int, level: float, jerk: float, sha: str = "kept") -> None:
+        noise = np.random.default_rng(seed).normal(0.0, 0.3, 400)  # each seed its own spread
+        (kept / f"st_s{seed}.json").write_text(json.dumps({"model_sha256": f"{sha}{seed}"}))
+        (scores / f"st_s{seed}.json").write_text(json.dumps({
+            "model_sha256": f"kept{seed}", "mean_err_cm": (level + noise).tolist(),
+            "jerk_rms": [jerk] * 400}))
+
+    put(1, 2.6, 480.0)
+    put(2, 2.4, 500.0)
+    put(3, 2.9, 400.0)
+    seeds_ = [{"seed": k} for k in (1, 2, 3)]
+    assert runs.choose_by_selection("st", seeds_, scores)["seed"] == 2
+    put(1, 2.41, 480.0)  # tied with seed 2 within the CI, and smoother: it ranks first
+    assert runs.choose_by_selection("st", seeds_, scores)["seed"] == 1
+    put(3, 2.9, 400.0, sha="retrained")  # the kept model changed after it was scored
+    with pytest.raises(UserError, match="scored another model"):
+        runs.choose_by_selection("st", seeds_, scores)
+    (scores / "st_s3.json").unlink()
+    with pytest.raises(UserError, match="not: st_s3"):
+        runs.choose_by_selection("st", seeds_, scores)
