@@ -12,7 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from results_steps import HEADLINE, HEADLINE_STUDY, PREVIOUS, SMOOTH
+from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SMOOTH
 
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
@@ -40,9 +40,6 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
           "deploy_caps_armfilter_5m": ("deploy_caps_armfilter_5m",
                                        ["deploy_caps_armfilter_5m",
                                         "deploy_caps_armfilter_5m_rest"])}
-# archived names chosen by issue 37's rule on the selection set (runs.py choose --by selection);
-# the rest keep the rule they were archived by, the best of 15 evaluation trajectories
-BY_SELECTION = {"deploy_caps_armfilter_5m"}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
@@ -95,7 +92,7 @@ def prepare(root: Path) -> None:
     for name, (study, folders) in CHOSEN.items():
         dirs = [f"sweeps/{f}/runs" for f in folders if (root / f"sweeps/{f}/runs").is_dir()]
         if not (root / f"archive/{name}.zip").exists() and dirs:
-            rule = ["--by", "selection"] if name in BY_SELECTION else []
+            rule = ["--by", "selection"] if study in BY_SELECTION else []
             _run(root, *runs, "choose", "--study", study, *rule, "--archive-as", name, "--runs",
                  *dirs)
     for study, pattern in KEPT.items():

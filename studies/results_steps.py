@@ -19,6 +19,10 @@ HEADLINE_STUDY = "v5_err_decay"
 HEADLINE = "v5_err_decay_s4"
 PREVIOUS = "v5_err_decay_wide_lr3e-4"  # the previous headline (its own tables: history/)
 ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measured (seed 2)
+# studies whose archived seed is chosen by issue 37's rule on the selection set (runs.py
+# --by selection); the rest keep the rule they were archived by, the best of 15 evaluation
+# trajectories
+BY_SELECTION = {"deploy_caps_armfilter_5m"}
 SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, the jerk)
 DEPLOY_STUDY = "deploy_lowpass_5m"  # issue 36's study (docs/questions.md 10)
 DEPLOY = "deploy_lowpass_5m"  # its chosen seed, archived
@@ -47,6 +51,12 @@ def _runs(*names: str) -> tuple[str, ...]:
 
 
 def _report(study: str) -> Step:
+    """A study's spread, its chosen seed marked by the rule its archive was chosen by."""
+    if study in BY_SELECTION:
+        return Step((f"results/studies/{study}/spread.md",),
+                    ("studies/runs.py", "report", "--study", study, "--by", "selection"),
+                    (*_runs(study, "baselines.json"), "results/studies/rank/scores"),
+                    stdout=True)
     return Step((f"results/studies/{study}/spread.md",),
                 ("studies/runs.py", "report", "--study", study),
                 _runs(study, "baselines.json"), stdout=True)

@@ -89,10 +89,11 @@ class Args:
     archive_as: str | None = None
     """choose: archive the chosen run's best model under this name (needs its run folder)."""
     by: Literal["evaluation", "selection"] = "evaluation"
-    """choose: the rule. evaluation: the lowest best error on the 15 evaluation trajectories
-    (every study's archive so far); selection: issue 37's rule on the selection set (every seed
-    scored, `studies/selection.py score`; lowest mean error, the smoother of tied neighbours
-    first), the rule the README states for the headline."""
+    """choose and report: the rule that chooses a study's run. evaluation: the lowest best
+    error on the 15 evaluation trajectories (every study's archive so far); selection: issue
+    37's rule on the selection set (every seed scored, `studies/selection.py score`; lowest
+    mean error, the smoother of tied neighbours first), the rule the README states for the
+    headline."""
     force: bool = False
     """Replace existing summaries, baselines or an archived name."""
     bootstrap: int = 10000
@@ -400,7 +401,7 @@ def report(args: Args) -> None:
     runs = load_study(args.study, ("best", "test", "model"))
     base = load_baseline(args.against)
     same_test_seeds(runs, f"{RUNS_DIR / args.study}/", base)
-    chosen = choose_run(runs)
+    chosen = chosen_by(args, runs)
     print(f"Study `{args.study}`: {len(runs)} training seeds, each its best evaluation-set model "
           f"on test seeds {TEST} (n=1000), 5 s episodes; differences are run - {args.against}, "
           "paired by trajectory, 95% bootstrap CIs; failed episodes charged. From "
@@ -424,7 +425,7 @@ def report(args: Args) -> None:
         print(f"\nAcross the {len(runs)} seeds: test mean error {np.mean(means):.2f} ± "
               f"{np.std(means, ddof=1):.2f} cm (mean ± std; range {min(means):.2f}-"
               f"{max(means):.2f}), settled {np.mean(settled):.2f} ± {np.std(settled, ddof=1):.2f}.")
-    print(f"Chosen by the rule (lowest best evaluation error, ties to the lower seed): seed "
+    print(f"Chosen by the rule ({RULES[args.by]}): seed "
           f"{chosen['seed']} (best model sha256 {chosen['best_model_sha256'][:12]}).")
 
 
@@ -452,18 +453,24 @@ def choose_by_selection(study: str, runs: list[dict], scores: Path) -> dict:
     return found[order[0][0]][0]
 
 
+SELECTION_SCORES = Path("results/studies/rank/scores")  # studies/selection.py's SCORES
+RULES = {"evaluation": "lowest best evaluation error, ties to the lower seed",
+         "selection": "issue 37's, first on the selection set, the smoother of tied seeds first"}
+
+
+def chosen_by(args: Args, runs: list[dict]) -> dict:
+    """The study's chosen run by --by's rule (report marks it, choose archives it)."""
+    if args.by == "selection":
+        return choose_by_selection(args.study, runs, SELECTION_SCORES)
+    return choose_run(runs)
+
+
 def choose(args: Args) -> None:
     runs = load_study(args.study, ("best", "model") if args.archive_as else ("best",))
-    if args.by == "selection":
-        chosen = choose_by_selection(args.study, runs,
-                                     Path("results/studies/rank/scores"))
-        print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}), first "
-              "on the selection set by issue 37's rule (results/studies/rank/scores/)")
-    else:
-        chosen = choose_run(runs)
-        print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}, best "
-              f"evaluation error {chosen['best']['mean_error_cm']:.3f} cm at "
-              f"{chosen['best']['timesteps']:,} steps)")
+    chosen = chosen_by(args, runs)
+    print(f"{args.study}: seed {chosen['seed']} (run {printable(chosen.get('run'))}, best "
+          f"evaluation error {chosen['best']['mean_error_cm']:.3f} cm at "
+          f"{chosen['best']['timesteps']:,} steps), by the rule: {RULES[args.by]}")
     if args.archive_as:
         from panda_lead.training.archive import archive_model, check_archive_free
 
