@@ -105,13 +105,15 @@ def bench_runs_at_once(runs: int, timesteps: int, extra: tuple[str, ...]) -> flo
     the last ends; each run's own wall includes its process start."""
     with tempfile.TemporaryDirectory() as tmp:
         t = time.perf_counter()
+        # stderr to files: a pipe nobody reads until the end blocks a run that fills it
+        errs = [Path(tmp) / f"stderr_{k}" for k in range(runs)]
         procs = [subprocess.Popen(_train_cmd(tmp, timesteps, (*extra, "--seed", str(k + 1))),
-                                  cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                                  cwd=tmp, stdout=subprocess.DEVNULL, stderr=errs[k].open("wb"))
                  for k in range(runs)]
         try:
-            for proc in procs:
+            for proc, err in zip(procs, errs, strict=True):
                 if proc.wait() != 0:
-                    raise RuntimeError(f"train.py failed: {proc.stderr.read().decode()[-2000:]}")
+                    raise RuntimeError(f"train.py failed: {err.read_text()[-2000:]}")
         finally:
             for proc in procs:
                 if proc.poll() is None:

@@ -198,14 +198,15 @@ def cprofile(args: Args) -> None:
     import cProfile
     import pstats
 
-    model, vec, per_iter = build(args.variants[0], args.quick, Path(tempfile.mkdtemp()))
     profiler = cProfile.Profile()
-    try:
-        profiler.enable()
-        model.learn(per_iter * args.cprofile, reset_num_timesteps=False)
-        profiler.disable()
-    finally:
-        vec.close()
+    with tempfile.TemporaryDirectory() as tmp:
+        model, vec, per_iter = build(args.variants[0], args.quick, Path(tmp))
+        try:
+            profiler.enable()
+            model.learn(per_iter * args.cprofile, reset_num_timesteps=False)
+        finally:
+            profiler.disable()
+            vec.close()
     stats = pstats.Stats(profiler)
     samples = per_iter * args.cprofile
     print(f"{args.variants[0]}, {args.cprofile} iterations ({samples:,} samples), cProfile on: "
