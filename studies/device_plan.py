@@ -30,6 +30,7 @@ best models). A step that runs out of time is killed and reported as such; the r
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -39,14 +40,13 @@ import tarfile
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 SITE = Path("/tmp/site")
 
 
-@dataclass
+@dataclasses.dataclass
 class Args:
     out: Path = Path("device_plan_out")
     """Where table.md, log.txt, bench_env.md and artifacts.tar.gz go."""
@@ -73,6 +73,16 @@ class Args:
     quality_flags: str = ""
     """Flags added to the quality runs' (after --profile gpu), e.g. "--n-envs 256 --batch-size
     8192"."""
+    quality_seeds: list[int] = dataclasses.field(default_factory=lambda: [1, 2])
+    """Training seeds of the quality runs, all at once, the cores split evenly between them."""
+    quality_variants: str = ""
+    """Instead of one run per seed, one run per ';'-separated entry, each entry train.py flags
+    of its own (e.g. "--preset deploy_caps_armfilter --seed 3; --preset v5_err_decay --seed
+    3"), all at once like the seeds."""
+    cprofile: int = 0
+    """With --quality-only, first a cProfile of this many PPO iterations of the gpu profile
+    (`studies/profile_update.py --variants fast --train-profile gpu --cprofile N`), its output
+    in cprofile_gpu.txt."""
 
 
 def wheels_given(argv: list[str]) -> Path | None:
@@ -184,35 +194,47 @@ def machine(log: Log) -> dict:
 def test_quality() -> None:
     """The --test-quality table (see Args.test_quality)."""
     import numpy as np
+    from runs import KEYS, TEST, _metrics_on_test
 
     from panda_lead import harness
-    from panda_lead.metrics.stats import paired_ci
+    from panda_lead.metrics.stats import paired_ci, t_ci
     from panda_lead.summaries import read_json
-    from runs import KEYS, TEST, _metrics_on_test
 
     names = {"mean_err": "mean error (cm)", "settled_err": "settled error (cm)",
              "jerk_rms": "jerk RMS (m/s^3)"}
+    models = {int(f.stem.rsplit("_s", 1)[1]): f
+              for f in (REPO / "archive" / "seeds").glob("gpu_profile_5m_s*.zip")}
     print(f"Test seeds {TEST}, 5 s episodes: the gpu profile's best model (evaluation set, "
           "every 250k steps) against the 2-core default's (`curriculum_5m`) of the same training "
           "seed; differences gpu - default, paired by trajectory, 95% bootstrap CIs. "
           "`uv run studies/device_plan.py --test-quality`\n")
     print("| seed | metric | gpu profile | 2-core default | difference [95% CI] |")
     print("|---|---|---|---|---|")
-    for seed in (1, 2):
-        model = REPO / "archive" / "seeds" / f"gpu_profile_5m_s{seed}.zip"
-        ctrl = harness.build("policy", 500, model)
+    per_seed = {k: [] for k in KEYS}  # (gpu, default) study means, one pair per training seed
+    for seed in sorted(models):
+        ctrl = harness.build("policy", 500, models[seed])
         gpu = _metrics_on_test(ctrl)
         cpu = read_json(REPO / "results" / "runs" / "curriculum_5m" / f"seed_{seed}.json",
                         "a run summary")["test"]
         for k in KEYS:
             a, b = np.array(gpu[k]), np.array(cpu[k])
             lo, hi = paired_ci(a - b)
+            per_seed[k].append((a.mean(), b.mean()))
             print(f"| {seed} | {names[k]} | {a.mean():.3f} | {b.mean():.3f} | "
                   f"{(a - b).mean():+.3f} [{lo:+.3f}, {hi:+.3f}] |", flush=True)
     means = [np.mean(read_json(f, "a run summary")["test"]["mean_err"])
              for f in sorted((REPO / "results" / "runs" / "curriculum_5m").glob("seed_*.json"))]
     print(f"\nThe 2-core default's {len(means)} seeds: test mean error {min(means):.2f}-"
           f"{max(means):.2f} cm (mean {np.mean(means):.2f}).")
+    if len(models) >= 3:
+        print(f"\nAcross the {len(models)} training seeds (each seed's test mean, gpu - default "
+              "paired by training seed; 95% t interval over seeds):\n")
+        print("| metric | gpu profile | 2-core default | difference [95% CI] |\n|---|---|---|---|")
+        for k in KEYS:
+            g, c = (np.array(x) for x in zip(*per_seed[k], strict=True))
+            lo, hi = t_ci(g - c)
+            print(f"| {names[k]} | {g.mean():.3f} ± {g.std(ddof=1):.3f} | {c.mean():.3f} ± "
+                  f"{c.std(ddof=1):.3f} | {(g - c).mean():+.3f} [{lo:+.3f}, {hi:+.3f}] |")
 
 
 def quality_curves() -> None:
@@ -234,15 +256,16 @@ def quality_curves() -> None:
           "`uv run studies/device_plan.py --curves`\n")
     print("| configuration | best by 3M steps | best by 5M | steps to 2.5 cm |\n|---|---|---|---|")
     print(row("2-core default (curriculum_5m, seeds 1-5)", cpu))
-    for name, stem in (("128 envs x 128, batch 4,096 (seeds 1, 2)", "gpu128_b4096"),
-                       ("gpu profile: 256 envs x 128, batch 8,192 (seeds 1, 2)", "gpu256_b8192")):
+    for name, stem in (("128 envs x 128, batch 4,096", "gpu128_b4096"),
+                       ("gpu profile: 256 envs x 128, batch 8,192", "gpu256_b8192")):
+        kept = {int(f.name.split("_s")[-1].split("_")[0]): f  # .../<stem>_s<seed>_progress.csv
+                for f in REPO.glob(f"results/bench/device_2026-11-2*/{stem}_s*_progress.csv")}
         curves = []
-        for seed in (1, 2):
-            kept = REPO / "results" / "bench" / "device_2026-11-26" / f"{stem}_s{seed}_progress.csv"
-            with open(kept) as f:
+        for seed in sorted(kept):
+            with open(kept[seed]) as f:
                 curves.append([(int(float(r["eval/timesteps"])), float(r["eval/mean_error_cm"]))
                                for r in csv.DictReader(f) if r.get("eval/mean_error_cm")])
-        print(row(name, curves))
+        print(row(f"{name} (seeds {', '.join(map(str, sorted(kept)))})", curves))
 
 
 def main() -> None:
@@ -251,6 +274,12 @@ def main() -> None:
     if wheels:
         install_wheels(wheels)
     sys.path.insert(0, str(REPO))  # the device has no installed panda_lead: the checkout's
+    from panda_lead.errors import exit_on_user_error
+
+    exit_on_user_error(plan)(t_start)
+
+
+def plan(t_start: float) -> None:
     from panda_lead.errors import parse_cli
 
     args = parse_cli(Args, description=__doc__)
@@ -275,6 +304,8 @@ def main() -> None:
     small = ["--n-envs", "8", "--n-steps", "64", "--batch-size", "256"] if args.small else []
     if not args.quality_only:
         steps_2_to_4(args, log, work, cuda, small, row, artifacts)
+    elif args.cprofile:
+        gpu_cprofile(args, log, cuda)
     quality(args, log, work, cuda, cores, small, row, artifacts)
     finish(args, log, info, cores, rows, artifacts, t_start)
 
@@ -353,46 +384,57 @@ def steps_2_to_4(args, log, work, cuda, small, row, artifacts) -> None:
 
 
 
+def gpu_cprofile(args, log, cuda) -> None:
+    """Where a sample's time goes in the gpu profile: issue 41's missing profile."""
+    cmd = [sys.executable, str(REPO / "studies" / "profile_update.py"), "--variants", "fast",
+           "--cprofile", str(args.cprofile)]
+    cmd += ["--quick"] if args.small else ["--train-profile", "gpu" if cuda == "cuda" else "cpu"]
+    _, _, _, out = run_step("cprofile_gpu", cmd, 150, log)
+    (args.out / "cprofile_gpu.txt").write_text(out)
+
+
 def quality(args, log, work, cuda, cores, small, row, artifacts) -> None:
-    # 5. Quality: the gpu profile, 5M steps, two seeds at once on half the cores each.
+    # 5. Quality: the gpu profile, 5M steps, the runs at once on an equal share of the cores:
+    # one per training seed, or one per --quality-variants entry.
     steps = 40_960 if args.small else args.quality_steps
     every = 8192 if args.small else 250_000
-    half = max(1, cores // 2)
+    variants = [v.strip() for v in args.quality_variants.split(";") if v.strip()]
+    runs = ([(f"v{i + 1}", v.split(), v) for i, v in enumerate(variants)] if variants else
+            [(f"s{seed}", ["--seed", str(seed)], f"seed {seed}") for seed in args.quality_seeds])
+    share = max(1, cores // len(runs))
     threads: list[threading.Thread] = []
-    results: dict[int, tuple] = {}
-    for i, seed in enumerate((1, 2)):
-        cpus = set(range(i * half, i * half + half))
-        flags = ["--profile", "gpu", "--device", cuda, "--n-workers", str(half),
-                 *args.quality_flags.split(), *small]
+    results: dict[str, tuple] = {}
+    for i, (key, own, _) in enumerate(runs):
+        cpus = set(range(i * share, i * share + share)) if cores >= len(runs) else None
+        flags = ["--profile", "gpu", "--device", cuda, "--n-workers", str(share),
+                 *args.quality_flags.split(), *own, *small]
         cmd = train_cmd(*flags, "--timesteps", str(steps), "--eval-freq", str(every),
-                        "--checkpoint-freq", str(10**9), "--runs-dir", str(work / f"q{seed}"),
-                        "--name", "quality", "--seed", str(seed))
-        th = threading.Thread(target=lambda s=seed, c=cmd, p=cpus: results.__setitem__(
-            s, run_step(f"quality_s{s}", c, args.quality_limit_s, log, p)))
+                        "--checkpoint-freq", str(10**9), "--runs-dir", str(work / f"q{key}"),
+                        "--name", "quality")
+        th = threading.Thread(target=lambda k=key, c=cmd, p=cpus: results.__setitem__(
+            k, run_step(f"quality_{k}", c, args.quality_limit_s, log, p)))
         th.start()
         threads.append(th)
     for th in threads:
         th.join()
-    for seed in (1, 2):
-        rows_ = progress(work / f"q{seed}")
+    for key, _, label in runs:
+        rows_ = progress(work / f"q{key}")
         curve = [(int(float(r["eval/timesteps"])), float(r["eval/mean_error_cm"]))
                  for r in rows_ if r.get("eval/mean_error_cm")]
-        status = results[seed][0]
+        status = results[key][0]
+        named = f"gpu profile {args.quality_flags}".strip() + f", {label}"
         if curve:
             best = min(e for _, e in curve)
-            named = f"gpu profile {args.quality_flags}".strip()
-            row(f"quality, {named}, seed {seed} (evaluation set, "
-                f"every {every:,} steps)",
+            row(f"quality, {named} (evaluation set, every {every:,} steps)",
                 f"best {best:.2f} cm, last {curve[-1][1]:.2f} cm at {curve[-1][0]:,} steps "
-                f"({'finished' if status == 0 else 'cut at the time limit'}); curve "
-                + " ".join(f"{e:.2f}" for _, e in curve))
+                f"({'finished' if status == 0 else 'cut at the time limit'}, "
+                f"{results[key][1]:.0f} s); curve " + " ".join(f"{e:.2f}" for _, e in curve))
         else:
-            row(f"quality, gpu profile, seed {seed}", f"no evaluation (exit {status}; log.txt)")
-        for run in (work / f"q{seed}").glob("*"):
+            row(f"quality, {named}", f"no evaluation (exit {status}; log.txt)")
+        for run in (work / f"q{key}").glob("*"):
             for rel in ("tb/progress.csv", "config.json", "best_model.zip", "best_model.json"):
                 if (run / rel).is_file():
-                    artifacts.append((run / rel, f"quality_s{seed}/{rel.replace('/', '_')}"))
-
+                    artifacts.append((run / rel, f"quality_{key}/{rel.replace('/', '_')}"))
 
 
 def finish(args, log, info, cores, rows, artifacts, t_start) -> None:

@@ -458,7 +458,8 @@ def report(args: Args, name: str) -> None:
     import numpy as np
     from rich.console import Console
     from rich.table import Table
-    from scipy import stats
+
+    from panda_lead.metrics.stats import t_ci
 
     study = load_study(args, name)
     trials = study.get_trials(deepcopy=False)
@@ -484,8 +485,8 @@ def report(args: Args, name: str) -> None:
     for config, vals in sorted(groups.items(), key=lambda kv: np.mean(kv[1])):
         v = np.array(vals)
         if len(v) > 1:
-            half = stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v))
-            ci, sd = f"[{v.mean() - half:.2f}, {v.mean() + half:.2f}]", f"{v.std(ddof=1):.2f}"
+            lo, hi = t_ci(v)
+            ci, sd = f"[{lo:.2f}, {hi:.2f}]", f"{v.std(ddof=1):.2f}"
         else:
             ci, sd = "n/a (1 seed)", "-"
         summary.add_row(config, str(len(v)), f"{v.mean():.2f}", sd, ci)

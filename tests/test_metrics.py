@@ -683,3 +683,14 @@ def test_a_narrow_terminal_gets_the_table_in_two_halves_nothing_truncated():
     text = out.getvalue()
     assert "…" not in text and "0.000488" in text and "p (Wilcoxon)" in text  # wrapped, not cut
     assert max(len(line) for line in text.splitlines()) <= 100
+
+
+def test_t_ci_is_students_interval_of_the_mean():
+    from scipy import stats as sps
+
+    from panda_lead.metrics.stats import t_ci
+
+    values = np.array([2.53, 2.57, 2.48, 2.80, 2.70])
+    expected = sps.t.interval(0.95, len(values) - 1, loc=values.mean(), scale=sps.sem(values))
+    assert np.allclose(t_ci(values), expected)
+    assert all(np.isnan(t_ci([2.5])))  # one seed has no interval

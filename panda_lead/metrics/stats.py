@@ -129,6 +129,19 @@ def paired_ci(deltas, n_boot: int = 10000, seed: int = 0) -> tuple[float, float]
     return bootstrap_ci(deltas, np.mean, n_boot, seed)
 
 
+def t_ci(values) -> tuple[float, float]:
+    """95% Student-t interval of the mean of a few values (one per training seed), where a
+    bootstrap over five values would be too narrow. NaN for fewer than 2 finite values."""
+    from scipy import stats
+
+    d = np.asarray(values, dtype=float)
+    d = d[np.isfinite(d)]
+    if len(d) < 2:
+        return NAN, NAN
+    half = stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d))
+    return float(d.mean() - half), float(d.mean() + half)
+
+
 def median_ci(deltas, n_boot: int = 10000, seed: int = 0) -> tuple[float, float]:
     """95% percentile-bootstrap CI of the median paired difference."""
     return bootstrap_ci(deltas, np.median, n_boot, seed)

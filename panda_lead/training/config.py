@@ -241,9 +241,9 @@ REFERENCE_HPARAMS = dict(n_envs=8, vec_env="subproc", n_steps=1024, batch_size=6
 # `--profile` starts from; every flag given still overrides them). cpu: the defaults above,
 # chosen on 2 cores (docs/performance.md, "Time to quality"). gpu: the fastest measured on a
 # 16-core + H100 machine, 3.2x the cpu profile's samples/s there with 8x fewer gradient steps
-# per sample; the same time to a 2.5 cm evaluation error, and after 5M steps test errors within
-# the cpu profile's seed spread (2 seeds; docs/performance.md, "16 cores and a GPU").
-# `--device cuda` picks it unless `--profile cpu` is given.
+# per sample; the same time to a 2.5 cm evaluation error, and after 5M steps the same test error
+# (5 seeds each, paired by seed: +0.017 cm [-0.071, +0.106]; docs/performance.md, "16 cores and
+# a GPU"). `--device cuda` picks it unless `--profile cpu` is given.
 PROFILES: dict[str, dict] = {
     "cpu": {},
     "gpu": dict(device="cuda", n_envs=256, n_steps=128, batch_size=8192),
