@@ -21,7 +21,8 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_lowpass_5m", "preview_5m", "deploy_real_5m", "deploy_kalman_5m",
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
-              "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m"]
+              "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
+              "deploy_large_batch_5m"]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
@@ -39,17 +40,26 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
           "preview_5m": ("preview_5m", ["preview_5m"]),
           "deploy_caps_armfilter_5m": ("deploy_caps_armfilter_5m",
                                        ["deploy_caps_armfilter_5m",
-                                        "deploy_caps_armfilter_5m_rest"])}
+                                        "deploy_caps_armfilter_5m_rest"]),
+          "deploy_large_batch_5m": ("deploy_large_batch_5m", ["deploy_large_batch_5m"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
                           "deploy_nominal_5m", "preview_feedforward_5m",
                           "preview_feedforward_settled_5m", "deploy_armfilter_5m",
                           "deploy_caps_5m", "deploy_unsmoothed_5m")},
-        "deploy_caps_armfilter_5m": "deploy_caps_armfilter_5m*"}
+        "deploy_caps_armfilter_5m": "deploy_caps_armfilter_5m*",
+        # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
+        # 36's candidate from the device pilots
+        "v5_err_decay_kept": "v5_err_decay_kept", "deploy_large_batch_5m": "deploy_large_batch_5m"}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m"]
+# single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
+# device pilots on the deployment world's share of nominal episodes (docs/deploy.md)
+SEED_POLICY_SETS = ["gpu_v5_err_decay_5m_s3", "gpu_deploy_nominal_only_5m_s3",
+                    "gpu_deploy_nominal75_5m_s3", "gpu_deploy_caps_armfilter_5m_s3",
+                    "deploy_caps_armfilter_5m_s3"]
 # the ILC oracle's rollout sets (test seeds 0-199): prefix -> the archived model it starts from
 ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m"}
 
@@ -102,12 +112,12 @@ def prepare(root: Path) -> None:
     for base, extra in [("classical", []), ("analytic", ["--controller", "analytic"])]:
         if not (root / "rollouts" / base).is_dir():
             _run(root, "ikpd.py", "--seeds", "0-999", "--prefix", base, *extra)
-    for m in POLICY_SETS:
+    for m in [*POLICY_SETS, *(f"seeds/{m}" for m in SEED_POLICY_SETS)]:
+        prefix = m.removeprefix("seeds/")
         want = _archived_sha(root, m)
-        have = _set_model(root, m)
-        if want and have != want:
-            _run(root, "eval.py", "--seeds", "0-999", "--prefix", m, "--model", f"archive/{m}.zip",
-                 "--force")
+        if want and _set_model(root, prefix) != want:
+            _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
+                 f"archive/{m}.zip", "--force")
     # the oracles: 20 replays per trajectory, started from a model's lead, seeds 0-199
     for prefix, model in ORACLES.items():
         want = _archived_sha(root, model)

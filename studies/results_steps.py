@@ -10,6 +10,7 @@ A step whose `stdout` is set writes its first output from the command's standard
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 # The headline: the first study of results/studies/rank.md (the lowest mean best
 # evaluation-set error over >= 3 seeds) and its chosen run, archived under the run's name. At 5
@@ -22,7 +23,7 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 # studies whose archived seed is chosen by issue 37's rule on the selection set (runs.py
 # --by selection); the rest keep the rule they were archived by, the best of 15 evaluation
 # trajectories
-BY_SELECTION = {"deploy_caps_armfilter_5m"}
+BY_SELECTION = {"deploy_caps_armfilter_5m", "deploy_large_batch_5m"}
 SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, the jerk)
 DEPLOY_STUDY = "deploy_lowpass_5m"  # issue 36's study (docs/questions.md 10)
 DEPLOY = "deploy_lowpass_5m"  # its chosen seed, archived
@@ -75,6 +76,16 @@ def _pair(a: str, b: str, out: str) -> Step:
                 per_seed_dropped=True, section="all")
 
 
+ROWS = ("none", "delay1", "delay3", "camera3", "noise1", "noise2")
+
+
+def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS) -> Step:
+    """studies/deploy.py's table and figure for these models on test seeds 0-99."""
+    return Step((f"{out_dir}/deploy.md", f"{out_dir}/deploy.png"),
+                ("studies/deploy.py", "--models", *models, "--seeds", "0-99", "--conditions",
+                 *conditions, "--out", "{dir}"), tuple(models), section="all")
+
+
 def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
     return Step((f"{out_dir}/{question}.md", f"{out_dir}/{question}.png"),
                 ("studies/robustness.py", "--question", question, "--models", *models,
@@ -116,6 +127,10 @@ def table_steps() -> list[Step]:
                            ("ikfree_5m", HS), ("ikfree_50m", HS), ("ikfree_5m", P),
                            ("ikfree_50m", P)]:
         steps.append(_compare(study, against))
+    # the headline's preset retrained with its seeds kept (2026-11-27, an AMD EPYC; the study
+    # itself on 2026-11-24/25's machines): what another CPU family's draw of the same five
+    # training seeds gives
+    steps += [_report("v5_err_decay_kept"), _compare("v5_err_decay_kept", HS)]
     stopped = ("results/studies/ikfree_long/stopped_const_lr_diagnostics.csv",
                "results/studies/ikfree_long/stopped_err_lr1e-3_diagnostics.csv")
     steps += [
@@ -240,11 +255,9 @@ def table_steps() -> list[Step]:
     # the filter on the tip's readings too (a pilot), against deploy_nominal
     steps += [_report("deploy_armfilter_5m"), _compare("deploy_armfilter_5m", "deploy_nominal_5m")]
     pair = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_armfilter_5m_s3.zip"]
-    steps.append(Step(tuple(f"results/studies/deploy_armfilter_5m/pilot/deploy.{x}"
-                            for x in ("md", "png")),
-                      ("studies/deploy.py", "--models", *pair, "--seeds", "0-99",
-                       "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
-                       "targetnoise1", "noise2", "--out", "{dir}"), tuple(pair), section="all"))
+    steps.append(_deploy(pair, "results/studies/deploy_armfilter_5m/pilot",
+                         ("none", "delay1", "delay3", "camera3", "noise1", "targetnoise1",
+                          "noise2")))
     # smoothness as a policy regulariser (CAPS) instead of the reward term and the low-pass,
     # and its control without either (pilots, training seed 3), against deploy_nominal
     # and CAPS with the filter on the tip's readings too
@@ -256,28 +269,33 @@ def table_steps() -> list[Step]:
               _compare("deploy_caps_armfilter_5m", "deploy_caps_5m")]
     caps = [f"{a}seeds/{s}_5m_s3.zip" for s in ("deploy_nominal", "deploy_unsmoothed",
                                                  "deploy_caps", "deploy_caps_armfilter")]
-    steps.append(Step(tuple(f"results/studies/deploy_caps_5m/pilot/deploy.{x}"
-                            for x in ("md", "png")),
-                      ("studies/deploy.py", "--models", *caps, "--seeds", "0-99",
-                       "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
-                       "noise2", "--out", "{dir}"), tuple(caps), section="all"))
+    steps.append(_deploy(caps, "results/studies/deploy_caps_5m/pilot"))
     # CAPS with the tip filter grown to five seeds: against deploy_nominal's five (paired by
     # training seed) and every seed's deployability rows (issue 36's targets, per seed)
     steps.append(_compare("deploy_caps_armfilter_5m", "deploy_nominal_5m"))
     caps5 = [f"{a}seeds/deploy_caps_armfilter_5m_s{k}.zip" for k in range(1, 6)]
-    steps.append(Step(tuple(f"results/studies/deploy_caps_armfilter_5m/deploy.{x}"
-                            for x in ("md", "png")),
-                      ("studies/deploy.py", "--models", *caps5, "--seeds", "0-99",
-                       "--conditions", "none", "delay1", "delay3", "camera3", "noise1",
-                       "noise2", "--out", "{dir}"), tuple(caps5), section="all"))
+    steps.append(_deploy(caps5, "results/studies/deploy_caps_armfilter_5m"))
+    # where the deployment world's precision goes (device pilots, seed 3, the gpu profile):
+    # nominal episodes alone against the headline's preset, then 3 in 4 and 1 in 2 nominal,
+    # then the same preset under the cpu profile; and their deployability rows
+    share = "results/studies/deploy_caps_armfilter_5m/nominal_share_gpu"
+    ladder = ["gpu_v5_err_decay_5m_s3", "gpu_deploy_nominal_only_5m_s3",
+              "gpu_deploy_nominal75_5m_s3", "gpu_deploy_caps_armfilter_5m_s3",
+              "deploy_caps_armfilter_5m_s3"]
+    steps += [_pair(a, b, f"{share}/{b}_vs_{a}.md") for a, b in pairwise(ladder)]
+    gpu3 = [f"{a}seeds/{m}.zip" for m in ladder[1:4]]
+    steps.append(_deploy(gpu3, share))
+    # issue 36's candidate from those pilots, five seeds: against deploy_caps_armfilter's five
+    # (paired by training seed) and every seed's deployability rows
+    steps += [_report("deploy_large_batch_5m"),
+              _compare("deploy_large_batch_5m", "deploy_caps_armfilter_5m")]
+    large5 = [f"{a}seeds/deploy_large_batch_5m_s{k}.zip" for k in range(1, 6)]
+    steps.append(_deploy(large5, "results/studies/deploy_large_batch_5m"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
-    steps.append(Step(tuple(f"results/studies/deploy_nominal_5m/noise_split/deploy.{x}"
-                            for x in ("md", "png")),
-                      ("studies/deploy.py", "--models", *split, "--seeds", "0-99",
-                       "--conditions", "noise1", "targetnoise1", "noise2", "targetnoise2",
-                       "--out", "{dir}"), tuple(split), section="all"))
+    steps.append(_deploy(split, "results/studies/deploy_nominal_5m/noise_split",
+                         ("noise1", "targetnoise1", "noise2", "targetnoise2")))
     deploy_models = [f"{a}{H}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip", f"{a}{DEPLOY}.zip"]
     steps.append(Step(("results/studies/deploy/deploy.md", "results/studies/deploy/deploy.png"),
                       ("studies/deploy.py", "--models", *deploy_models, "--seeds", "0-99",

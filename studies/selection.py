@@ -149,8 +149,9 @@ def _study_of(stem: str) -> tuple[str, int] | None:
 
 def rank(args: Args) -> None:
     sys.path.insert(0, str(ROOT / "studies"))
-    from panda_lead.seeds import SELECT_SEEDS
     from runs import tie_ranked
+
+    from panda_lead.seeds import SELECT_SEEDS
 
     scores = {}
     for f in sorted(SCORES.glob("*.json")):
