@@ -44,6 +44,12 @@ class Args:
     pair's samples/s, wall ratio and peak memory (PSS, whole process tree), then the medians."""
     update_steps: int = 300_000
     """Training steps per run of --update-pairs and --parallel-pairs."""
+    update_against: str = "--no-fast-update"
+    """--update-pairs' second run: the defaults plus these flags, one string after an =
+    (--update-against="--n-envs 256 --batch-size 8192": a larger collection and minibatch)."""
+    update_base: str = ""
+    """Flags for both runs of --update-pairs, one string after an = (--update-base="--preset
+    deploy_caps_armfilter")."""
     env_only: bool = False
     """Only the env's figures (physics, single env, batched env per thread and on every
     thread, the physics-bound limit): no PPO, no memory run (studies/device_plan.py times PPO
@@ -76,22 +82,27 @@ def print_pairs(count: int, label: str, pair) -> None:
           f"(range {min(ratios):.2f}-{max(ratios):.2f})")
 
 
-def update_pairs(count: int, steps: int) -> None:
-    """Issue 39's before/after on whole `train.py` runs (see Args.update_pairs)."""
-    ratios, mem = [], {"fast": [], "sb3": []}
+def update_pairs(count: int, steps: int, base: tuple[str, ...] = (),
+                 against: tuple[str, ...] = ("--no-fast-update",)) -> None:
+    """Issue 39's before/after on whole `train.py` runs (see Args.update_pairs): the defaults
+    (plus ``base``) against the same plus ``against``."""
+    b_name = "SB3's update" if against == ("--no-fast-update",) else " ".join(against)
+    a_name = "FastPPO" if b_name == "SB3's update" else "defaults"
+    if base:
+        a_name += f" ({' '.join(base)})"
+    ratios, mem = [], {"a": [], "b": []}
     for i in range(count):
-        (fast_mb, fast_s), (sb3_mb, sb3_s) = (bench_memory(steps),
-                                              bench_memory(steps, ("--no-fast-update",)))
-        ratios.append(sb3_s / fast_s)
-        mem["fast"].append(fast_mb)
-        mem["sb3"].append(sb3_mb)
-        print(f"pair {i + 1}: FastPPO {steps / fast_s:,.0f} samples/s ({fast_s:.1f} s, peak "
-              f"{fast_mb:,.0f} MB), SB3's update {steps / sb3_s:,.0f} samples/s ({sb3_s:.1f} s, "
-              f"peak {sb3_mb:,.0f} MB): {sb3_s / fast_s:.3f}x faster", flush=True)
-    fast_mb, sb3_mb = statistics.median(mem["fast"]), statistics.median(mem["sb3"])
-    print(f"median of {count} pairs: FastPPO {statistics.median(ratios):.3f}x SB3's update "
-          f"(range {min(ratios):.3f}-{max(ratios):.3f}); peak memory {fast_mb:,.0f} MB against "
-          f"{sb3_mb:,.0f} MB (medians). Wall times include each process's start (torch import, "
+        (a_mb, a_s), (b_mb, b_s) = bench_memory(steps, base), bench_memory(steps, (*base, *against))
+        ratios.append(b_s / a_s)
+        mem["a"].append(a_mb)
+        mem["b"].append(b_mb)
+        print(f"pair {i + 1}: {a_name} {steps / a_s:,.0f} samples/s ({a_s:.1f} s, peak "
+              f"{a_mb:,.0f} MB), {b_name} {steps / b_s:,.0f} samples/s ({b_s:.1f} s, "
+              f"peak {b_mb:,.0f} MB): {b_s / a_s:.3f}x faster", flush=True)
+    a_mb, b_mb = statistics.median(mem["a"]), statistics.median(mem["b"])
+    print(f"median of {count} pairs: {a_name} {statistics.median(ratios):.3f}x {b_name} "
+          f"(range {min(ratios):.3f}-{max(ratios):.3f}); peak memory {a_mb:,.0f} MB against "
+          f"{b_mb:,.0f} MB (medians). Wall times include each process's start (torch import, "
           "env build), the same for both.")
 
 
@@ -279,14 +290,21 @@ def bench_memory(timesteps: int, extra: tuple[str, ...] = ()) -> tuple[float, fl
     process tree; and wall s."""
     with tempfile.TemporaryDirectory() as tmp:
         cmd = _train_cmd(tmp, timesteps, extra)
+        err = Path(tmp) / "stderr"  # a file: a pipe read only at the end blocks a run that fills it
         t = time.perf_counter()
-        proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        peak = 0.0
-        while proc.poll() is None:
-            peak = max(peak, _tree_pss_mb(proc.pid))
-            time.sleep(0.1)
+        with err.open("wb") as sink:
+            proc = subprocess.Popen(cmd, cwd=tmp, stdout=subprocess.DEVNULL, stderr=sink)
+            try:
+                peak = 0.0
+                while proc.poll() is None:
+                    peak = max(peak, _tree_pss_mb(proc.pid))
+                    time.sleep(0.1)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
         if proc.returncode != 0:
-            raise RuntimeError(f"train.py failed: {proc.stderr.read().decode()[-2000:]}")
+            raise RuntimeError(f"train.py failed: {err.read_text()[-2000:]}")
         return peak, time.perf_counter() - t
 
 
@@ -318,7 +336,9 @@ def main() -> None:
     secs = 0.5 if args.quick else 2.0
     rows: list[tuple[str, str]] = []
     if args.update_pairs:
-        return update_pairs(args.update_pairs, args.update_steps)
+        return update_pairs(args.update_pairs, args.update_steps,
+                            tuple(shlex.split(args.update_base)),
+                            tuple(shlex.split(args.update_against)))
     if args.parallel_pairs:
         return parallel_pairs(args.parallel_pairs, args.parallel_runs or cores, args.update_steps,
                               tuple(shlex.split(args.parallel_flags)))

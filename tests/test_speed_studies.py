@@ -24,6 +24,18 @@ def test_update_pairs_time_both_updates_on_whole_training_runs(tmp_path):
 
 
 @pytest.mark.slow
+def test_update_pairs_time_any_flags_against_the_defaults(tmp_path):
+    out = run_script("studies/bench.py", "--update-pairs", "1", "--update-steps", "256",
+                     "--update-base=--n-envs 2 --n-steps 64 --batch-size 64",
+                     "--update-against=--batch-size 128", cwd=tmp_path,
+                     env={"MUJOCO_GL": "egl"}, timeout=900)
+    assert out.returncode == 0, out.stderr
+    assert "pair 1: defaults (--n-envs 2 --n-steps 64 --batch-size 64)" in out.stdout
+    assert "samples/s" in out.stdout and "--batch-size 128 " in out.stdout
+    assert "median of 1 pairs: defaults" in out.stdout
+
+
+@pytest.mark.slow
 def test_parallel_pairs_time_one_run_and_several_at_once(tmp_path):
     out = run_script("studies/bench.py", "--parallel-pairs", "1", "--parallel-runs", "2",
                      "--update-steps", "256", "--parallel-flags=--n-envs 2 --n-steps 64",
