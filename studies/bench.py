@@ -98,12 +98,13 @@ def update_pairs(count: int, steps: int, base: tuple[str, ...] = (),
         mem["b"].append(b_mb)
         print(f"pair {i + 1}: {a_name} {steps / a_s:,.0f} samples/s ({a_s:.1f} s, peak "
               f"{a_mb:,.0f} MB), {b_name} {steps / b_s:,.0f} samples/s ({b_s:.1f} s, "
-              f"peak {b_mb:,.0f} MB): {b_s / a_s:.3f}x faster", flush=True)
+              f"peak {b_mb:,.0f} MB): {a_name} at {b_s / a_s:.3f}x {b_name}'s samples/s",
+              flush=True)
     a_mb, b_mb = statistics.median(mem["a"]), statistics.median(mem["b"])
-    print(f"median of {count} pairs: {a_name} {statistics.median(ratios):.3f}x {b_name} "
-          f"(range {min(ratios):.3f}-{max(ratios):.3f}); peak memory {a_mb:,.0f} MB against "
-          f"{b_mb:,.0f} MB (medians). Wall times include each process's start (torch import, "
-          "env build), the same for both.")
+    print(f"median of {count} pairs: {a_name} at {statistics.median(ratios):.3f}x {b_name}'s "
+          f"samples/s (range {min(ratios):.3f}-{max(ratios):.3f}); peak memory {a_mb:,.0f} MB "
+          f"against {b_mb:,.0f} MB (medians). Wall times include each process's start (torch "
+          "import, env build), the same for both.")
 
 
 def _train_cmd(tmp: str, timesteps: int, extra: tuple[str, ...]) -> list[str]:
