@@ -291,6 +291,11 @@ def table_steps() -> list[Step]:
               _compare("deploy_large_batch_5m", "deploy_caps_armfilter_5m")]
     large5 = [f"{a}seeds/deploy_large_batch_5m_s{k}.zip" for k in range(1, 6)]
     steps.append(_deploy(large5, "results/studies/deploy_large_batch_5m"))
+    # ... with nine nominal episodes in ten: the precision it buys, the latency it costs
+    steps += [_report("deploy_large_batch_n90_5m"),
+              _compare("deploy_large_batch_n90_5m", "deploy_large_batch_5m")]
+    n90 = [f"{a}seeds/deploy_large_batch_n90_5m_s{k}.zip" for k in range(1, 6)]
+    steps.append(_deploy(n90, "results/studies/deploy_large_batch_n90_5m"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
