@@ -296,6 +296,11 @@ def table_steps() -> list[Step]:
               _compare("deploy_large_batch_n90_5m", "deploy_large_batch_5m")]
     n90 = [f"{a}seeds/deploy_large_batch_n90_5m_s{k}.zip" for k in range(1, 6)]
     steps.append(_deploy(n90, "results/studies/deploy_large_batch_n90_5m"))
+    # ... with 256x256 networks (pilots, seeds 3 and 1)
+    steps += [_report("deploy_large_batch_wide_5m"),
+              _compare("deploy_large_batch_wide_5m", "deploy_large_batch_5m")]
+    wide = [f"{a}seeds/deploy_large_batch_wide_5m_s{k}.zip" for k in (3, 1)]
+    steps.append(_deploy(wide, "results/studies/deploy_large_batch_wide_5m/pilot"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]

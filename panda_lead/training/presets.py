@@ -279,6 +279,13 @@ PRESETS.update([
     # ... with nine nominal episodes in ten: deploy_large_batch's five seeds were 0.3 cm short
     # of the headline without delay, and the pilots lost ~0.1 cm per 0.1 of the share given to
     # delayed and noisy episodes (trained on nominal ones alone, the lead collapsed at 3 steps).
+    # ... with 256x256 networks: one 64x64 policy serves nominal, delayed and noisy episodes,
+    # and the share given to the last two costs the first precision (docs/deploy.md): does
+    # capacity buy it back? (Pilots.)
+    _preset("deploy_large_batch_wide", "deploy_large_batch with 256x256 networks (25-D)",
+            env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
+            lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0, n_envs=256,
+            batch_size=8192, net_arch=(256, 256)),
     _preset("deploy_large_batch_n90", "deploy_large_batch with 9 nominal episodes in 10 "
             "(nominal_share 0.9) (25-D)",
             env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.9),
