@@ -12,7 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SMOOTH
+from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SHARE_LADDER, SMOOTH
 
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
@@ -59,9 +59,7 @@ POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_
                "preview_5m"]
 # single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
 # device pilots on the deployment world's share of nominal episodes (docs/deploy.md)
-SEED_POLICY_SETS = ["gpu_v5_err_decay_5m_s3", "gpu_deploy_nominal_only_5m_s3",
-                    "gpu_deploy_nominal75_5m_s3", "gpu_deploy_caps_armfilter_5m_s3",
-                    "deploy_caps_armfilter_5m_s3"]
+SEED_POLICY_SETS = SHARE_LADDER
 # the ILC oracle's rollout sets (test seeds 0-199): prefix -> the archived model it starts from
 ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m"}
 

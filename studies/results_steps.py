@@ -24,6 +24,12 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 # --by selection); the rest keep the rule they were archived by, the best of 15 evaluation
 # trajectories
 BY_SELECTION = {"deploy_caps_armfilter_5m", "deploy_large_batch_5m"}
+# The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
+# models, each paired with the next on the test seeds): the headline's preset, the deployment
+# world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
+SHARE_LADDER = ["gpu_v5_err_decay_5m_s3", "gpu_deploy_nominal_only_5m_s3",
+                "gpu_deploy_nominal75_5m_s3", "gpu_deploy_caps_armfilter_5m_s3",
+                "deploy_caps_armfilter_5m_s3"]
 SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, the jerk)
 DEPLOY_STUDY = "deploy_lowpass_5m"  # issue 36's study (docs/questions.md 10)
 DEPLOY = "deploy_lowpass_5m"  # its chosen seed, archived
@@ -279,11 +285,8 @@ def table_steps() -> list[Step]:
     # nominal episodes alone against the headline's preset, then 3 in 4 and 1 in 2 nominal,
     # then the same preset under the cpu profile; and their deployability rows
     share = "results/studies/deploy_caps_armfilter_5m/nominal_share_gpu"
-    ladder = ["gpu_v5_err_decay_5m_s3", "gpu_deploy_nominal_only_5m_s3",
-              "gpu_deploy_nominal75_5m_s3", "gpu_deploy_caps_armfilter_5m_s3",
-              "deploy_caps_armfilter_5m_s3"]
-    steps += [_pair(a, b, f"{share}/{b}_vs_{a}.md") for a, b in pairwise(ladder)]
-    gpu3 = [f"{a}seeds/{m}.zip" for m in ladder[1:4]]
+    steps += [_pair(a, b, f"{share}/{b}_vs_{a}.md") for a, b in pairwise(SHARE_LADDER)]
+    gpu3 = [f"{a}seeds/{m}.zip" for m in SHARE_LADDER[1:4]]
     steps.append(_deploy(gpu3, share))
     # issue 36's candidate from those pilots, five seeds: against deploy_caps_armfilter's five
     # (paired by training seed) and every seed's deployability rows

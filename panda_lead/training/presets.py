@@ -25,6 +25,12 @@ DEPLOY_UNSMOOTHED_ENV = dict(obs_features=OBS_15 + ("tip_error", "prev_action", 
                              target_filter=True, obs_noise=DEPLOY_NOISE)
 
 
+# deploy_large_batch's config, which its variants (a wider network, another nominal share) vary.
+DEPLOY_LARGE_BATCH = dict(env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
+                          lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0,
+                          n_envs=256, batch_size=8192)
+
+
 def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
     env = EnvConfig(**kw.pop("env", {}))
     PRESET_DOCS[name] = doc
@@ -273,9 +279,7 @@ PRESETS.update([
     # took deploy_caps_armfilter from 4.57 to 3.62 cm at 3 steps of latency.
     _preset("deploy_large_batch", "deploy_caps_armfilter with 3 nominal episodes in 4 "
             "(nominal_share 0.75) and 256 envs x 128 steps, minibatch 8,192 (25-D)",
-            env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
-            lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0, n_envs=256,
-            batch_size=8192),
+            **DEPLOY_LARGE_BATCH),
     # ... with nine nominal episodes in ten: deploy_large_batch's five seeds were 0.3 cm short
     # of the headline without delay, and the pilots lost ~0.1 cm per 0.1 of the share given to
     # delayed and noisy episodes (trained on nominal ones alone, the lead collapsed at 3 steps).
@@ -283,14 +287,10 @@ PRESETS.update([
     # and the share given to the last two costs the first precision (docs/deploy.md): does
     # capacity buy it back? (Pilots.)
     _preset("deploy_large_batch_wide", "deploy_large_batch with 256x256 networks (25-D)",
-            env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
-            lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0, n_envs=256,
-            batch_size=8192, net_arch=(256, 256)),
+            **DEPLOY_LARGE_BATCH, net_arch=(256, 256)),
     _preset("deploy_large_batch_n90", "deploy_large_batch with 9 nominal episodes in 10 "
             "(nominal_share 0.9) (25-D)",
-            env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.9),
-            lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0, n_envs=256,
-            batch_size=8192),
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], nominal_share=0.9)}),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
