@@ -79,6 +79,10 @@ class Args:
     """Instead of one run per seed, one run per ';'-separated entry, each entry train.py flags
     of its own (e.g. "--preset deploy_caps_armfilter --seed 3; --preset v5_err_decay --seed
     3"), all at once like the seeds."""
+    quality_eval_freq: int = 250_000
+    """Steps between the quality runs' evaluations (a study's own runs evaluate every 50,000
+    steps, train.py's default: give that to runs that join one, so that its best model is
+    chosen on the same grid)."""
     cprofile: int = 0
     """With --quality-only, first a cProfile of this many PPO iterations of the gpu profile
     (`studies/profile_update.py --variants fast --train-profile gpu --cprofile N`), its output
@@ -397,7 +401,7 @@ def quality(args, log, work, cuda, cores, small, row, artifacts) -> None:
     # 5. Quality: the gpu profile, 5M steps, the runs at once on an equal share of the cores:
     # one per training seed, or one per --quality-variants entry.
     steps = 40_960 if args.small else args.quality_steps
-    every = 8192 if args.small else 250_000
+    every = 8192 if args.small else args.quality_eval_freq
     variants = [v.strip() for v in args.quality_variants.split(";") if v.strip()]
     runs = ([(f"v{i + 1}", v.split(), v) for i, v in enumerate(variants)] if variants else
             [(f"s{seed}", ["--seed", str(seed)], f"seed {seed}") for seed in args.quality_seeds])
@@ -432,7 +436,9 @@ def quality(args, log, work, cuda, cores, small, row, artifacts) -> None:
         else:
             row(f"quality, {named}", f"no evaluation (exit {status}; log.txt)")
         for run in (work / f"q{key}").glob("*"):
-            for rel in ("tb/progress.csv", "config.json", "best_model.zip", "best_model.json"):
+            # What `studies/runs.py summarize` reads of a run folder, so a run can join a study.
+            for rel in ("tb/progress.csv", "config.json", "command.txt", "best.json",
+                        "best_model.zip", "best_model.json", "final_model.zip", "final_model.json"):
                 if (run / rel).is_file():
                     artifacts.append((run / rel, f"quality_{key}/{rel.replace('/', '_')}"))
 
