@@ -291,6 +291,12 @@ PRESETS.update([
     _preset("deploy_large_batch_n90", "deploy_large_batch with 9 nominal episodes in 10 "
             "(nominal_share 0.9) (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], nominal_share=0.9)}),
+    # ... with three times CAPS's spatial term: under 1 cm of noise its five seeds' tip jerk was
+    # 723-779 m/s^3 against the filtered analytic lead's 615; the tip's noisy reading reaches the
+    # lead through tip_error, and the spatial term is what asks the policy not to follow an
+    # input's small perturbations.
+    _preset("deploy_large_batch_caps30", "deploy_large_batch with CAPS's spatial weight 30 "
+            "(was 10) (25-D)", **{**DEPLOY_LARGE_BATCH, "caps_spatial": 30.0}),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
