@@ -22,7 +22,8 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
-              "deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m"]
+              "deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
+              "deploy_large_batch_caps30_5m"]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
@@ -41,7 +42,9 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
           "deploy_caps_armfilter_5m": ("deploy_caps_armfilter_5m",
                                        ["deploy_caps_armfilter_5m",
                                         "deploy_caps_armfilter_5m_rest"]),
-          "deploy_large_batch_5m": ("deploy_large_batch_5m", ["deploy_large_batch_5m"])}
+          "deploy_large_batch_5m": ("deploy_large_batch_5m", ["deploy_large_batch_5m"]),
+          "deploy_large_batch_wide_5m": ("deploy_large_batch_wide_5m",
+                                         ["deploy_large_batch_wide_5m"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
@@ -53,7 +56,8 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # 36's candidate from the device pilots
         "v5_err_decay_kept": "v5_err_decay_kept", "deploy_large_batch_5m": "deploy_large_batch_5m",
         "deploy_large_batch_n90_5m": "deploy_large_batch_n90_5m",
-        "deploy_large_batch_wide_5m": "deploy_large_batch_wide_5m"}
+        "deploy_large_batch_wide_5m": "deploy_large_batch_wide_5m",
+        "deploy_large_batch_caps30_5m": "deploy_large_batch_caps30_5m"}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m"]

@@ -113,6 +113,21 @@ def test_a_card_says_when_its_model_was_selected_and_what_it_outputs(tmp_path):
     assert "Selected at" not in card
 
 
+def test_a_card_says_when_its_quick_test_plays_a_non_nominal_training_world(tmp_path):
+    # A deployment model's quick test plays its own world (latency and noise drawn per episode),
+    # 0.5 cm above its nominal error: the card must say so, and a nominal model's must not.
+    for name in ("deploy_large_batch_5m", "ikfree_long"):
+        for suffix in (".zip", ".json"):
+            shutil.copy2(ROOT / "archive" / f"{name}{suffix}", tmp_path / f"{name}{suffix}")
+    deploy = write_card(tmp_path / "deploy_large_batch_5m.zip",
+                        verify(tmp_path / "deploy_large_batch_5m.zip"), seed0=1.0).read_text()
+    assert ("own training world (latency 0-3 steps, observation noise 0-1 cm, 75% of episodes "
+            "nominal), not the nominal one") in deploy
+    nominal = write_card(tmp_path / "ikfree_long.zip", verify(tmp_path / "ikfree_long.zip"),
+                         seed0=1.0).read_text()
+    assert "training world" not in nominal
+
+
 def test_a_card_is_numbered_on_the_pinned_matrix_path_from_any_process(monkeypatch):
     """A card written in a process whose torch runs on another matrix path (a training run on
     an AVX-512 machine: archive/ikfree's seed 0 moves from 5.408674 to 5.092068 cm there) is

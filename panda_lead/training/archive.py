@@ -236,7 +236,7 @@ Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same 
 | set | mean error (cm) | time in 5 cm band (%) |
 |---|---|---|
 | all | {test.get('mean_error_cm', float('nan')):.2f} | {test.get('in_band_pct', float('nan')):.1f} |
-{shape_rows}
+{shape_rows}{training_world(side["env_config"])}
 
 Test seed 0 alone: {seed0:.6f} cm (the snippet below reproduces it on any x86 CPU with torch's
 matrix kernels pinned, `MKL_ENABLE_INSTRUCTIONS=SSE4_2`; other kernels can move its last
@@ -282,6 +282,27 @@ def train_noise_changed(side: dict) -> bool:
     noise, features = env.get("obs_noise") or {}, env.get("obs_features") or ()
     return bool({"tip_error", "tip_error_avg"} & set(features)) and bool(
         noise.get("ee_pos") or noise.get("target_pos"))
+
+
+def training_world(env: dict) -> str:
+    """The card's words for a model whose quick test plays its own training world when that
+    world is not the nominal one (latency or noise drawn per episode): its figures are then not
+    the nominal test's, and a reader comparing them with the README's would be misled."""
+    delays = [env.get(k) or 0 for k in ("obs_delay", "action_delay", "target_delay")]
+    noisy = bool(env.get("obs_noise"))
+    if not (any(delays) or noisy):
+        return ""
+    parts = []
+    if any(delays):
+        parts.append(f"latency {'0-' if env.get('random_delay') else ''}{max(delays)} steps")
+    if noisy:
+        parts.append(f"observation noise {'0-' if env.get('random_noise') else ''}"
+                     f"{100 * (env['obs_noise'].get('target_pos') or env['obs_noise'].get('ee_pos') or 0):g} cm")
+    share = env.get("nominal_share")
+    nominal = f", {share:.0%} of episodes nominal" if share else ""
+    return (f"\n\nPlayed in the model's own training world ({', '.join(parts)}{nominal}), not the "
+            "nominal one: its nominal and per-condition rows are in `uv run studies/deploy.py`'s "
+            "tables (docs/deploy.md).")
 
 
 def rewrite_cards(names=None) -> list[Path]:
