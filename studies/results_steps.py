@@ -311,13 +311,12 @@ def table_steps() -> list[Step]:
     chosen = [f"{a}deploy_large_batch_wide_5m.zip", f"{a}deploy_large_batch_5m.zip"]
     steps.append(_deploy(chosen, "results/studies/deploy_large_batch_wide_5m/test1000",
                          seeds="0-999"))
-    # ... with CAPS's spatial weight tripled (pilot, seed 3 here; seeds 1, 2 and 4 on the H200
-    # were cut at 4.5M steps, their curves in results/bench/device_2026-11-27b/)
+    # ... with CAPS's spatial weight tripled (five seeds here; the H200's first tries of seeds
+    # 1, 2 and 4 were cut at 4.5M steps, their curves in results/bench/device_2026-11-27b/)
     steps += [_report("deploy_large_batch_caps30_5m"),
               _compare("deploy_large_batch_caps30_5m", "deploy_large_batch_5m")]
-    caps30 = [f"{a}seeds/deploy_large_batch_caps30_5m_s3.zip",
-              f"{a}seeds/deploy_large_batch_5m_s3.zip"]
-    steps.append(_deploy(caps30, "results/studies/deploy_large_batch_caps30_5m/pilot"))
+    caps30 = [f"{a}seeds/deploy_large_batch_caps30_5m_s{k}.zip" for k in range(1, 6)]
+    steps.append(_deploy(caps30, "results/studies/deploy_large_batch_caps30_5m"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
