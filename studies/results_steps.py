@@ -11,6 +11,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import pairwise
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
 
 # The headline: the first study of results/studies/rank.md (the lowest mean best
 # evaluation-set error over >= 3 seeds) and its chosen run, archived under the run's name. At 5
@@ -60,10 +63,13 @@ def _runs(*names: str) -> tuple[str, ...]:
 def _report(study: str) -> Step:
     """A study's spread, its chosen seed marked by the rule its archive was chosen by."""
     if study in BY_SELECTION:
+        # It reads its own seeds' selection scores only: another study's new score must not
+        # make it stale (it did while the input was the whole scores folder).
+        scores = sorted(f"results/studies/rank/scores/{f.name}" for f in
+                        (ROOT / "results/studies/rank/scores").glob(f"{study}_s[0-9]*.json"))
         return Step((f"results/studies/{study}/spread.md",),
                     ("studies/runs.py", "report", "--study", study, "--by", "selection"),
-                    (*_runs(study, "baselines.json"), "results/studies/rank/scores"),
-                    stdout=True)
+                    (*_runs(study, "baselines.json"), *scores), stdout=True)
     return Step((f"results/studies/{study}/spread.md",),
                 ("studies/runs.py", "report", "--study", study),
                 _runs(study, "baselines.json"), stdout=True)

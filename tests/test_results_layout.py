@@ -138,3 +138,16 @@ def test_prepare_summarizes_finished_runs_and_skips_a_stopped_trial(tmp_path, mo
     assert summarize[summarize.index("--runs") + 1:] == ("sweeps/deploy_nominal_5m/runs/t0000__3__1/",)
     assert "skip: sweeps/deploy_nominal_5m/runs/t0001__1__2/ is not a finished run" in \
         capsys.readouterr().out
+
+
+def test_a_by_selection_spread_goes_stale_on_its_own_studys_scores_only():
+    # runs.py report --by selection reads <study>_s<k>.json of the selection scores; with the
+    # whole scores folder as its input, every other study's new score made it stale.
+    from results_steps import BY_SELECTION
+
+    for study in BY_SELECTION:
+        step = next(s for s in table_steps() if s.outs == (f"results/studies/{study}/spread.md",))
+        scores = [i for i in step.inputs if i.startswith("results/studies/rank/scores")]
+        assert scores, f"{study}'s spread reads no selection score"
+        assert all(re.fullmatch(rf"{re.escape(study)}_s\d+\.json", Path(i).name) for i in scores)
+        assert all((ROOT / i).is_file() for i in scores)
