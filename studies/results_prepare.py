@@ -23,7 +23,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
               "deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
-              "deploy_large_batch_caps30_5m"]
+              "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m"]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
@@ -57,7 +57,8 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         "v5_err_decay_kept": "v5_err_decay_kept", "deploy_large_batch_5m": "deploy_large_batch_5m",
         "deploy_large_batch_n90_5m": "deploy_large_batch_n90_5m",
         "deploy_large_batch_wide_5m": "deploy_large_batch_wide_5m",
-        "deploy_large_batch_caps30_5m": "deploy_large_batch_caps30_5m"}
+        "deploy_large_batch_caps30_5m": "deploy_large_batch_caps30_5m",
+        "deploy_large_batch_wide_n90_5m": "deploy_large_batch_wide_n90_5m"}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m"]

@@ -317,6 +317,11 @@ def table_steps() -> list[Step]:
     chosen = [f"{a}deploy_large_batch_wide_5m.zip", f"{a}deploy_large_batch_5m.zip"]
     steps.append(_deploy(chosen, "results/studies/deploy_large_batch_wide_5m/test1000",
                          seeds="0-999"))
+    # ... the wide networks with nine nominal episodes in ten: the share's precision on top
+    steps += [_report("deploy_large_batch_wide_n90_5m"),
+              _compare("deploy_large_batch_wide_n90_5m", "deploy_large_batch_wide_5m")]
+    wide_n90 = [f"{a}seeds/deploy_large_batch_wide_n90_5m_s{k}.zip" for k in range(1, 6)]
+    steps.append(_deploy(wide_n90, "results/studies/deploy_large_batch_wide_n90_5m"))
     # ... with CAPS's spatial weight tripled (five seeds here; the H200's first tries of seeds
     # 1, 2 and 4 were cut at 4.5M steps, their curves in results/bench/device_2026-11-27b/)
     steps += [_report("deploy_large_batch_caps30_5m"),
