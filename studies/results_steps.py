@@ -99,6 +99,14 @@ def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS,
                  *conditions, "--out", "{dir}"), tuple(models), section="all")
 
 
+def _five_seeds(study: str, against: str, a: str) -> list[Step]:
+    """A five-seed study's spread, its comparison with another study (paired per trajectory)
+    and every seed's deployability rows (results/studies/<study>/)."""
+    models = [f"{a}seeds/{study}_s{k}.zip" for k in range(1, 6)]
+    return [_report(study), _compare(study, against),
+            _deploy(models, f"results/studies/{study}")]
+
+
 def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
     return Step((f"{out_dir}/{question}.md", f"{out_dir}/{question}.png"),
                 ("studies/robustness.py", "--question", question, "--models", *models,
@@ -297,37 +305,22 @@ def table_steps() -> list[Step]:
     steps.append(_deploy(gpu3, share))
     # issue 36's candidate from those pilots, five seeds: against deploy_caps_armfilter's five
     # (paired by training seed) and every seed's deployability rows
-    steps += [_report("deploy_large_batch_5m"),
-              _compare("deploy_large_batch_5m", "deploy_caps_armfilter_5m")]
-    large5 = [f"{a}seeds/deploy_large_batch_5m_s{k}.zip" for k in range(1, 6)]
-    steps.append(_deploy(large5, "results/studies/deploy_large_batch_5m"))
+    steps += _five_seeds("deploy_large_batch_5m", "deploy_caps_armfilter_5m", a)
     # ... with nine nominal episodes in ten: the precision it buys, the latency it costs
-    steps += [_report("deploy_large_batch_n90_5m"),
-              _compare("deploy_large_batch_n90_5m", "deploy_large_batch_5m")]
-    n90 = [f"{a}seeds/deploy_large_batch_n90_5m_s{k}.zip" for k in range(1, 6)]
-    steps.append(_deploy(n90, "results/studies/deploy_large_batch_n90_5m"))
+    steps += _five_seeds("deploy_large_batch_n90_5m", "deploy_large_batch_5m", a)
     # ... with 256x256 networks (seeds 1 and 3 trained here, 2, 4 and 5 on the lent H200 with
     # the same PPO sizes: the preset's own are the gpu profile's)
-    steps += [_report("deploy_large_batch_wide_5m"),
-              _compare("deploy_large_batch_wide_5m", "deploy_large_batch_5m")]
-    wide = [f"{a}seeds/deploy_large_batch_wide_5m_s{k}.zip" for k in range(1, 6)]
-    steps.append(_deploy(wide, "results/studies/deploy_large_batch_wide_5m"))
+    steps += _five_seeds("deploy_large_batch_wide_5m", "deploy_large_batch_5m", a)
     # the recommended model for hardware against the previous candidate on all 1,000 test
     # seeds: the targets' margins (2.0 cm at 1 and 3 steps, acceptance) with CIs a third as wide
     chosen = [f"{a}deploy_large_batch_wide_5m.zip", f"{a}deploy_large_batch_5m.zip"]
     steps.append(_deploy(chosen, "results/studies/deploy_large_batch_wide_5m/test1000",
                          seeds="0-999"))
     # ... the wide networks with nine nominal episodes in ten: the share's precision on top
-    steps += [_report("deploy_large_batch_wide_n90_5m"),
-              _compare("deploy_large_batch_wide_n90_5m", "deploy_large_batch_wide_5m")]
-    wide_n90 = [f"{a}seeds/deploy_large_batch_wide_n90_5m_s{k}.zip" for k in range(1, 6)]
-    steps.append(_deploy(wide_n90, "results/studies/deploy_large_batch_wide_n90_5m"))
+    steps += _five_seeds("deploy_large_batch_wide_n90_5m", "deploy_large_batch_wide_5m", a)
     # ... with CAPS's spatial weight tripled (five seeds here; the H200's first tries of seeds
     # 1, 2 and 4 were cut at 4.5M steps, their curves in results/bench/device_2026-11-27b/)
-    steps += [_report("deploy_large_batch_caps30_5m"),
-              _compare("deploy_large_batch_caps30_5m", "deploy_large_batch_5m")]
-    caps30 = [f"{a}seeds/deploy_large_batch_caps30_5m_s{k}.zip" for k in range(1, 6)]
-    steps.append(_deploy(caps30, "results/studies/deploy_large_batch_caps30_5m"))
+    steps += _five_seeds("deploy_large_batch_caps30_5m", "deploy_large_batch_5m", a)
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
