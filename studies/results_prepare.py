@@ -14,6 +14,9 @@ from pathlib import Path
 
 from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SHARE_LADDER, SMOOTH
 
+# issue 36's large-batch deployment studies (five seeds each, every seed kept)
+LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
+               "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m")
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
@@ -22,8 +25,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
-              "deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
-              "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m"]
+              *LARGE_BATCH]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
@@ -53,12 +55,8 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
                           "deploy_caps_5m", "deploy_unsmoothed_5m")},
         "deploy_caps_armfilter_5m": "deploy_caps_armfilter_5m*",
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
-        # 36's candidate from the device pilots
-        "v5_err_decay_kept": "v5_err_decay_kept", "deploy_large_batch_5m": "deploy_large_batch_5m",
-        "deploy_large_batch_n90_5m": "deploy_large_batch_n90_5m",
-        "deploy_large_batch_wide_5m": "deploy_large_batch_wide_5m",
-        "deploy_large_batch_caps30_5m": "deploy_large_batch_caps30_5m",
-        "deploy_large_batch_wide_n90_5m": "deploy_large_batch_wide_n90_5m"}
+        # 36's large-batch studies
+        "v5_err_decay_kept": "v5_err_decay_kept", **{s: s for s in LARGE_BATCH}}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m"]

@@ -99,10 +99,10 @@ def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS,
                  *conditions, "--out", "{dir}"), tuple(models), section="all")
 
 
-def _five_seeds(study: str, against: str, a: str) -> list[Step]:
+def _five_seeds(study: str, against: str) -> list[Step]:
     """A five-seed study's spread, its comparison with another study (paired per trajectory)
     and every seed's deployability rows (results/studies/<study>/)."""
-    models = [f"{a}seeds/{study}_s{k}.zip" for k in range(1, 6)]
+    models = [f"archive/seeds/{study}_s{k}.zip" for k in range(1, 6)]
     return [_report(study), _compare(study, against),
             _deploy(models, f"results/studies/{study}")]
 
@@ -305,22 +305,22 @@ def table_steps() -> list[Step]:
     steps.append(_deploy(gpu3, share))
     # issue 36's candidate from those pilots, five seeds: against deploy_caps_armfilter's five
     # (paired by training seed) and every seed's deployability rows
-    steps += _five_seeds("deploy_large_batch_5m", "deploy_caps_armfilter_5m", a)
+    steps += _five_seeds("deploy_large_batch_5m", "deploy_caps_armfilter_5m")
     # ... with nine nominal episodes in ten: the precision it buys, the latency it costs
-    steps += _five_seeds("deploy_large_batch_n90_5m", "deploy_large_batch_5m", a)
+    steps += _five_seeds("deploy_large_batch_n90_5m", "deploy_large_batch_5m")
     # ... with 256x256 networks (seeds 1 and 3 trained here, 2, 4 and 5 on the lent H200 with
     # the same PPO sizes: the preset's own are the gpu profile's)
-    steps += _five_seeds("deploy_large_batch_wide_5m", "deploy_large_batch_5m", a)
+    steps += _five_seeds("deploy_large_batch_wide_5m", "deploy_large_batch_5m")
     # the recommended model for hardware against the previous candidate on all 1,000 test
     # seeds: the targets' margins (2.0 cm at 1 and 3 steps, acceptance) with CIs a third as wide
     chosen = [f"{a}deploy_large_batch_wide_5m.zip", f"{a}deploy_large_batch_5m.zip"]
     steps.append(_deploy(chosen, "results/studies/deploy_large_batch_wide_5m/test1000",
                          seeds="0-999"))
     # ... the wide networks with nine nominal episodes in ten: the share's precision on top
-    steps += _five_seeds("deploy_large_batch_wide_n90_5m", "deploy_large_batch_wide_5m", a)
+    steps += _five_seeds("deploy_large_batch_wide_n90_5m", "deploy_large_batch_wide_5m")
     # ... with CAPS's spatial weight tripled (five seeds here; the H200's first tries of seeds
     # 1, 2 and 4 were cut at 4.5M steps, their curves in results/bench/device_2026-11-27b/)
-    steps += _five_seeds("deploy_large_batch_caps30_5m", "deploy_large_batch_5m", a)
+    steps += _five_seeds("deploy_large_batch_caps30_5m", "deploy_large_batch_5m")
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
