@@ -213,7 +213,12 @@ def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
             if budget and steps and budget - steps > train.get("eval_freq", 0) else
             f"Trained {steps:,} steps{from_preset}, seed {train.get('seed', '?')}, "
             f"{side.get('wall_time_s', '?')} s")
-    origin = (f"{when}, code commit `{side.get('commit', '?')}`." if train else
+    start = side.get("init_from") or {}
+    # A warm-started model's steps are on top of its starting model's (training/warm_start.py).
+    started = (f" Started from `{start.get('path', '?')}` (sha256 "
+               f"`{str(start.get('sha256', '?'))[:12]}`), not from random weights: its steps "
+               "are on top of that model's." if start else "")
+    origin = (f"{when}, code commit `{side.get('commit', '?')}`.{started}" if train else
               f"Adopted from `{side.get('source', '?')}` (trained outside this repo's train.py).")
     caveats = "".join(f"\n**Caveat.** {c}\n" for c in side.get("caveats", []))
     action = side["env_config"].get("action", "lead")
@@ -296,8 +301,9 @@ def training_world(env: dict) -> str:
     if any(delays):
         parts.append(f"latency {'0-' if env.get('random_delay') else ''}{max(delays)} steps")
     if noisy:
+        level = env["obs_noise"].get("target_pos") or env["obs_noise"].get("ee_pos") or 0
         parts.append(f"observation noise {'0-' if env.get('random_noise') else ''}"
-                     f"{100 * (env['obs_noise'].get('target_pos') or env['obs_noise'].get('ee_pos') or 0):g} cm")
+                     f"{100 * level:g} cm")
     share = env.get("nominal_share")
     nominal = f", {share:.0%} of episodes nominal" if share else ""
     return (f"\n\nPlayed in the model's own training world ({', '.join(parts)}{nominal}), not the "

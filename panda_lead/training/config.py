@@ -102,6 +102,12 @@ class TrainConfig:
     well (docs/questions.md 5); the presets, the reference ladder, run without it."""
     curriculum_start_speed: float = 0.8
     """Peak-speed cap (m/s) of the training targets at step 0 of a curriculum."""
+    init_from: str | None = None
+    """Start from a trained model's weights instead of random ones (training/warm_start.py):
+    inputs this run observes and the model did not start at zero weight, so the first policy's
+    mean is the model's (its exploration starts at --log-std-init). ``{seed}`` in the path is
+    replaced by --seed (one starting model per training seed, e.g.
+    archive/seeds/v5_err_decay_kept_s{seed}.zip). None: a fresh network."""
     preset: str | None = None
     """Start from a preset (see the list above); every flag given overrides it."""
 
@@ -146,6 +152,12 @@ class TrainConfig:
                 raise UserError(f"--{flag(name)} must be a finite number {rng}, got {v!r}"
                                 if math.isfinite(lo) else f"--{flag(name)} must be finite, got {v!r}")
             set_(name, float(v))
+        if self.init_from is not None and (
+                not isinstance(self.init_from, str) or not self.init_from.strip()
+                or "{" in self.init_from.replace("{seed}", "")
+                or "}" in self.init_from.replace("{seed}", "")):
+            raise UserError(f"--init-from must be a model's path ({{seed}} the only "
+                            f"placeholder), got {self.init_from!r}")
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
         if (self.caps_temporal or self.caps_spatial) and not self.fast_update:

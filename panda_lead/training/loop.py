@@ -47,6 +47,7 @@ from .callbacks import (
 )
 from .config import RESUME_MAY_CHANGE, TrainArgs, TrainConfig, check_fits, read_run_config
 from .envs import make_vec_env
+from .warm_start import check_init_from, warm_start
 
 # The code this process trains with: read when the training code is imported, not when a
 # model is saved (a sweep's later trial, or a save after someone edits the tree, would name
@@ -143,6 +144,8 @@ def train(args: TrainArgs, on_eval=None, extra: dict | None = None) -> Path:
     check_fits(config)  # refuse what cannot fit in memory before creating anything
     if args.archive:
         check_archive_free(args.archive, args.force)  # before hours of training, not after
+    if config.init_from and not args.resume:
+        check_init_from(config.init_from, config.seed, config)  # before a run folder is made
     if args.resume:
         run_dir = Path(args.resume)
         if not run_dir.is_dir():
@@ -162,10 +165,12 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     from .fast_ppo import build_ppo
 
     best = (math.inf, None)
+    started_from = None  # the model a warm-started run began with (its sidecars keep it)
     if args.resume:
         ckpt, ckpt_side = _resume_point(run_dir, config)
         clock = RunClock(before_s=float(ckpt_side.get("wall_time_s") or 0.0))
         best = resume_best(run_dir)  # before any work: a damaged best is one line
+        started_from = ckpt_side.get("init_from")
     else:
         write_json_atomic(run_dir / "config.json",
                           {**config.to_dict(), **({"extra": extra} if extra else {})})
@@ -177,7 +182,8 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
     def sidecar(steps: int, **more) -> dict:
         return {"env_config": config.env.to_dict(), "train_config": config.to_dict(),
                 "timesteps": int(steps), "wall_time_s": round(clock.elapsed(), 1),
-                "commit": CODE_COMMIT, "cpu": CPU, **more}
+                "commit": CODE_COMMIT, "cpu": CPU,
+                **({"init_from": started_from} if started_from else {}), **more}
 
     def save(model, path: Path, steps: int, **more) -> Path:
         return save_model(model, path, sidecar(steps, **more))
@@ -199,6 +205,9 @@ def _train_locked(args: TrainArgs, config: TrainConfig, run_dir: Path, on_eval, 
         vec.seed(int(np.random.SeedSequence([config.seed, model.num_timesteps]).generate_state(1)[0]))
         print(f"resuming {run_dir} from {ckpt.name} at {model.num_timesteps} steps")
     else:
+        if config.init_from:
+            started_from = warm_start(model, config.init_from, config)
+            print(f"started from {started_from['path']} (sha256 {started_from['sha256'][:12]})")
         table = "|param|value|\n|-|-|\n" + "\n".join(
             f"|{k}|{v}|" for k, v in config.to_dict().items())
         # A str value goes to TensorBoard's text tab as a table.

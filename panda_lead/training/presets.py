@@ -25,6 +25,10 @@ DEPLOY_UNSMOOTHED_ENV = dict(obs_features=OBS_15 + ("tip_error", "prev_action", 
                              target_filter=True, obs_noise=DEPLOY_NOISE)
 
 
+# The headline study's five trained seeds (v5_err_decay's preset, 5M steps each, this machine
+# family): what a warm-started preset starts from, seed by seed (TrainConfig.init_from).
+HEADLINE_SEEDS = "archive/seeds/v5_err_decay_kept_s{seed}.zip"
+
 # deploy_large_batch's config, which its variants (a wider network, another nominal share) vary.
 DEPLOY_LARGE_BATCH = dict(env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
                           lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0,
@@ -308,6 +312,14 @@ PRESETS.update([
     # input's small perturbations.
     _preset("deploy_large_batch_caps30", "deploy_large_batch with CAPS's spatial weight 30 "
             "(was 10) (25-D)", **{**DEPLOY_LARGE_BATCH, "caps_spatial": 30.0}),
+    # ... started from the headline study's seed of the same number (precision first, then the
+    # deployment world): every deployment lead so far learned precision and robustness at once
+    # and lost 0.1-0.3 cm of the first to the share of delayed and noisy episodes; starting
+    # from a precise lead, does fine-tuning keep it? (Zero weights on the inputs the headline
+    # did not observe, so the first policy's mean is the headline's: training/warm_start.py.)
+    _preset("deploy_large_batch_from_headline", "deploy_large_batch started from the headline "
+            "study's trained seed (v5_err_decay_kept_s<seed>: 5M steps before this run's) "
+            "(25-D)", **DEPLOY_LARGE_BATCH, init_from=HEADLINE_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
@@ -346,6 +358,18 @@ PRESETS.update([
     # Here each look-ahead's Taylor residual per h^3 (config.OBS_SCALE's preview_jerk), over
     # look-aheads from 0.02 s (a fifth of the servo lag the analytic lead's tau of 0.04 s
     # covers) to 0.3 s.
+    # Does the path ahead pay once the causal lead is learned? preview_5m learned from scratch
+    # and stayed 0.63 cm behind the causal study; here both arms start from the headline
+    # study's trained seeds and train on, one with the path ahead added (zero weights on it at
+    # the start), one without (the control: what more training alone buys).
+    _preset("v5_err_decay_continued", "v5_err_decay started from the headline study's trained "
+            "seed (v5_err_decay_kept_s<seed>): the control of v5_err_decay_preview_continued "
+            "(18-D)", env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
+            init_from=HEADLINE_SEEDS),
+    _preset("v5_err_decay_preview_continued", "v5_err_decay_preview started from the headline "
+            "study's trained seed, the path ahead at zero weight (36-D): knows the planned "
+            "path", env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
+            lr_schedule="linear", init_from=HEADLINE_SEEDS),
     _preset("v5_err_decay_preview_jerk", "v5_err_decay + the planned path's jerk ahead over "
             "0.02-0.3 s (the target's future positions minus their Taylor guess, per h^3; "
             "36-D): knows the planned path",
