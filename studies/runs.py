@@ -194,6 +194,8 @@ def summarize(args: Args) -> None:
                        "eval_curve": curve, "best": best,
                        "best_model_sha256": side["model_sha256"], "test_seeds": TEST,
                        "test": _metrics_on_test(ctrl)}
+            if side.get("init_from"):  # a warm-started run: its steps are on top of this model's
+                summary["init_from"] = side["init_from"]
             with atomic_write(path, ".tmp.json") as tmp:
                 Path(tmp).write_text(json.dumps(summary, indent=1) + "\n")
             print(f"wrote {path}: test mean error {np.mean(summary['test']['mean_err']):.3f} cm")
