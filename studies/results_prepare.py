@@ -16,7 +16,8 @@ from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SHAR
 
 # issue 36's large-batch deployment studies (five seeds each, every seed kept)
 LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
-               "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m")
+               "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m",
+               "deploy_large_batch_from_headline_5m")
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",

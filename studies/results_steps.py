@@ -321,6 +321,11 @@ def table_steps() -> list[Step]:
     # ... with CAPS's spatial weight tripled (five seeds here; the H200's first tries of seeds
     # 1, 2 and 4 were cut at 4.5M steps, their curves in results/bench/device_2026-11-27b/)
     steps += _five_seeds("deploy_large_batch_caps30_5m", "deploy_large_batch_5m")
+    # ... started from the headline study's trained seeds (precision first, then the
+    # deployment world; 5M steps on top of theirs): against the same preset from random weights,
+    # and against the wide candidate
+    steps += _five_seeds("deploy_large_batch_from_headline_5m", "deploy_large_batch_5m")
+    steps.append(_compare("deploy_large_batch_from_headline_5m", "deploy_large_batch_wide_5m"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
