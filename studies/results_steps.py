@@ -326,6 +326,12 @@ def table_steps() -> list[Step]:
     # and against the wide candidate
     steps += _five_seeds("deploy_large_batch_from_headline_5m", "deploy_large_batch_5m")
     steps.append(_compare("deploy_large_batch_from_headline_5m", "deploy_large_batch_wide_5m"))
+    steps.append(Step(("results/studies/deploy_large_batch_from_headline_5m/curve.md",
+                       "results/studies/deploy_large_batch_from_headline_5m/curve.png"),
+                      ("studies/runs.py", "curve", "--studies",
+                       "deploy_large_batch_from_headline_5m", "deploy_large_batch_5m", "--plot",
+                       "{out1}"), _runs("deploy_large_batch_from_headline_5m",
+                                        "deploy_large_batch_5m"), stdout=True))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
