@@ -267,6 +267,15 @@ def table_steps() -> list[Step]:
                        ("studies/runs.py", "compare", "--study", study, "--against-study",
                         "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
     steps.append(_compare("preview_feedforward_settled_5m", "preview_feedforward_5m"))
+    # the path ahead once the causal lead is learned: the headline study's seeds trained on
+    # with it and without it (the control), against each other, their start and the rival
+    cont, pcont = "v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m"
+    for study in (cont, pcont):
+        steps += [_report(study), _compare(study, "v5_err_decay_kept"),
+                  Step((f"results/studies/{study}/vs_feedforward.md",),
+                       ("studies/runs.py", "compare", "--study", study, "--against-study",
+                        "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
+    steps.append(_compare(pcont, cont))
     # issue 36, a lead a real arm could run: the study, and the deployability table
     steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
               _compare(DEPLOY_STUDY, HS)]
