@@ -320,6 +320,13 @@ PRESETS.update([
     _preset("deploy_large_batch_from_headline", "deploy_large_batch started from the headline "
             "study's trained seed (v5_err_decay_kept_s<seed>: 5M steps before this run's) "
             "(25-D)", **DEPLOY_LARGE_BATCH, init_from=HEADLINE_SEEDS),
+    # ... its control: deploy_large_batch's own trained seeds trained on for as many steps in
+    # the same world, so that what the headline's start does is told apart from what 5M more
+    # steps do.
+    _preset("deploy_large_batch_continued", "deploy_large_batch started from its own trained "
+            "seed (deploy_large_batch_5m_s<seed>: 5M steps before this run's): the control of "
+            "deploy_large_batch_from_headline (25-D)", **DEPLOY_LARGE_BATCH,
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
