@@ -26,7 +26,8 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 # studies whose archived seed is chosen by issue 37's rule on the selection set (runs.py
 # --by selection); the rest keep the rule they were archived by, the best of 15 evaluation
 # trajectories
-BY_SELECTION = {"deploy_caps_armfilter_5m", "deploy_large_batch_5m", "deploy_large_batch_wide_5m"}
+BY_SELECTION = {"deploy_caps_armfilter_5m", "deploy_large_batch_5m", "deploy_large_batch_wide_5m",
+                "deploy_large_batch_continued_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -341,6 +342,15 @@ def table_steps() -> list[Step]:
                        "deploy_large_batch_from_headline_5m", "deploy_large_batch_5m", "--plot",
                        "{out1}"), _runs("deploy_large_batch_from_headline_5m",
                                         "deploy_large_batch_5m"), stdout=True))
+    # ... its control: deploy_large_batch's own seeds trained on for 5M steps more (10M in all)
+    cont = "deploy_large_batch_continued_5m"
+    steps += _five_seeds(cont, "deploy_large_batch_5m")
+    steps += [_compare(cont, "deploy_large_batch_from_headline_5m"),
+              _compare(cont, "deploy_large_batch_wide_5m")]
+    # the new candidate for hardware against the previous one on all 1,000 test seeds
+    chosen = [f"{a}deploy_large_batch_10m.zip", f"{a}deploy_large_batch_wide_5m.zip"]
+    steps.append(_deploy(chosen, "results/studies/deploy_large_batch_continued_5m/test1000",
+                         seeds="0-999"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
