@@ -277,6 +277,9 @@ def table_steps() -> list[Step]:
                        ("studies/runs.py", "compare", "--study", study, "--against-study",
                         "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
     steps.append(_compare(pcont, cont))
+    steps.append(Step((f"results/studies/{pcont}/vs_future_target.md",),
+                      ("studies/runs.py", "compare", "--study", pcont, "--against-study",
+                       "baseline:future_target"), _runs(pcont, "baselines.json"), stdout=True))
     # issue 36, a lead a real arm could run: the study, and the deployability table
     steps += [_report(DEPLOY_STUDY), _compare(DEPLOY_STUDY, "delayed_5m"),
               _compare(DEPLOY_STUDY, HS)]
