@@ -80,6 +80,27 @@ def _knows_path_of(record: dict) -> bool:
     return knows_path(side["train_config"]["env"])
 
 
+def _budget(record: dict) -> str:
+    """The training steps behind a scored model, from its sidecar: "5M", or "5M + 5M" for a run
+    started from another model's weights (train.py --init-from), whose steps are on top of
+    that model's. Blank when the sidecar is not there."""
+    def steps_of(model: str | Path) -> tuple[int, dict] | None:
+        path = ROOT / Path(model).with_suffix(".json")
+        if not path.is_file():
+            return None
+        side = json.loads(path.read_text())
+        return int((side.get("train_config") or {}).get("timesteps", 0)), side
+
+    own = steps_of(record["model"])
+    if own is None:
+        return ""
+    steps, side = own
+    start = side.get("init_from") or {}
+    before = steps_of(start["path"]) if start.get("path") else None
+    parts = ([f"{before[0] / 1e6:g}M"] if before else ["?"] if start else []) + [f"{steps / 1e6:g}M"]
+    return " + ".join(parts)
+
+
 def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, str, bool]:
     """(per-trajectory mean error cm, tip jerk RMS m/s^3, model sha256, whether it knows the
     planned path) on ``seeds``."""
@@ -169,7 +190,9 @@ def rank(args: Args) -> None:
           "tested on; every model under the default evaluation env, no delay, no noise).\n")
     print("Rule (2026-11-26): ordered by mean error on the selection set; neighbours whose "
           "paired 95% CI includes 0 are tied, and the smoother (lower mean tip jerk) ranks "
-          "first.\n")
+          "first. Training steps: a run started from another model's weights (train.py "
+          "--init-from) counts that model's too (5M + 5M); the rank does not weigh budgets, the "
+          "reader must.\n")
     print(f"Scored: {len(scores)} models; a study is ranked when at least 3 of its seeds' models "
           "are archived (archive/seeds/<study>_s<k>.zip) and scored: "
           f"{', '.join(sorted(k for k, v in studies.items() if len(v) >= 3)) or 'none'}.")
@@ -208,11 +231,11 @@ def rank(args: Args) -> None:
         jerks = {k: float(np.mean([scores[m]["jerk_rms"] for m in v])) for k, v in
                  groups.items()}
         order = tie_ranked(errors, jerks)
-        print(f"\n{title}\n\n| rank | name | seeds | mean error (cm) | tip jerk RMS (m/s^3) | "
-              "tied with the row above |\n|---|---|---|---|---|---|")
+        print(f"\n{title}\n\n| rank | name | seeds | training steps | mean error (cm) | "
+              "tip jerk RMS (m/s^3) | tied with the row above |\n|---|---|---|---|---|---|---|")
         for i, (name, tied) in enumerate(order, 1):
-            print(f"| {i} | {name} | {len(groups[name])} | {errors[name].mean():.3f} | "
-                  f"{jerks[name]:.0f} | {'yes' if tied else ''} |")
+            print(f"| {i} | {name} | {len(groups[name])} | {_budget(scores[groups[name][0]])} | "
+                  f"{errors[name].mean():.3f} | {jerks[name]:.0f} | {'yes' if tied else ''} |")
 
 
 def main(args: Args) -> None:

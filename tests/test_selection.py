@@ -157,3 +157,23 @@ def test_choose_by_selection_takes_the_rules_first_seed_and_refuses_a_stale_scor
     (scores / "st_s3.json").unlink()
     with pytest.raises(UserError, match="not: st_s3"):
         runs.choose_by_selection("st", seeds_, scores)
+
+
+def test_the_rank_counts_a_warm_started_models_starting_steps(tmp_path, monkeypatch):
+    """A model trained on top of another (train.py --init-from) shows both budgets, so that a
+    10M-step study is not read as a 5M one beside the rest."""
+    import json
+
+    selection = _load("selection")
+    (tmp_path / "archive").mkdir()
+    for name, steps, start in (("start", 5_000_000, None), ("warm", 2_500_000, "archive/start.zip"),
+                               ("lost", 1_000_000, "archive/gone.zip")):
+        side = {"train_config": {"timesteps": steps}}
+        if start:
+            side["init_from"] = {"path": start, "sha256": "0" * 64}
+        (tmp_path / "archive" / f"{name}.json").write_text(json.dumps(side))
+    monkeypatch.setattr(selection, "ROOT", tmp_path)
+    assert selection._budget({"model": "archive/start.zip"}) == "5M"
+    assert selection._budget({"model": "archive/warm.zip"}) == "5M + 2.5M"
+    assert selection._budget({"model": "archive/lost.zip"}) == "? + 1M"
+    assert selection._budget({"model": "archive/absent.zip"}) == ""
