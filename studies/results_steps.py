@@ -27,7 +27,7 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 # --by selection); the rest keep the rule they were archived by, the best of 15 evaluation
 # trajectories
 BY_SELECTION = {"deploy_caps_armfilter_5m", "deploy_large_batch_5m", "deploy_large_batch_wide_5m",
-                "deploy_large_batch_continued_5m"}
+                "deploy_large_batch_continued_5m", "v5_err_decay_preview_continued_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -277,6 +277,13 @@ def table_steps() -> list[Step]:
                        ("studies/runs.py", "compare", "--study", study, "--against-study",
                         "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
     steps.append(_compare(pcont, cont))
+    # ... and its chosen model's share of the oracle's gain, the oracle restarted from it
+    steps.append(Step((f"results/studies/{pcont}/with_oracle.md",),
+                      ("metrics.py", "--prefix-a", "analytic", "--prefix-b",
+                       "preview_continued_10m", "--oracle", "ilc_preview_continued",
+                       "--markdown"),
+                      ("rollouts/analytic", "rollouts/preview_continued_10m",
+                       "rollouts/ilc_preview_continued"), stdout=True, section="all"))
     steps.append(Step((f"results/studies/{pcont}/vs_future_target.md",),
                       ("studies/runs.py", "compare", "--study", pcont, "--against-study",
                        "baseline:future_target"), _runs(pcont, "baselines.json"), stdout=True))
