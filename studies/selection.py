@@ -83,22 +83,14 @@ def _knows_path_of(record: dict) -> bool:
 def _budget(record: dict) -> str:
     """The training steps behind a scored model, from its sidecar: "5M", or "5M + 5M" for a run
     started from another model's weights (train.py --init-from), whose steps are on top of
-    that model's. Blank when the sidecar is not there."""
-    def steps_of(model: str | Path) -> tuple[int, dict] | None:
-        path = ROOT / Path(model).with_suffix(".json")
-        if not path.is_file():
-            return None
-        side = json.loads(path.read_text())
-        return int((side.get("train_config") or {}).get("timesteps", 0)), side
-
-    own = steps_of(record["model"])
-    if own is None:
+    that model's ("?" where that model's sidecar is gone). Blank when the sidecar is not there."""
+    path = ROOT / Path(record["model"]).with_suffix(".json")
+    if not path.is_file():
         return ""
-    steps, side = own
-    start = side.get("init_from") or {}
-    before = steps_of(start["path"]) if start.get("path") else None
-    parts = ([f"{before[0] / 1e6:g}M"] if before else ["?"] if start else []) + [f"{steps / 1e6:g}M"]
-    return " + ".join(parts)
+    side = json.loads(path.read_text())
+    own = f"{int((side.get('train_config') or {}).get('timesteps', 0)) / 1e6:g}M"
+    start = (side.get("init_from") or {}).get("path")
+    return f"{_budget({'model': start}) or '?'} + {own}" if start else own
 
 
 def play(model: Path, seeds, duration: float) -> tuple[np.ndarray, np.ndarray, str, bool]:

@@ -359,12 +359,6 @@ PRESETS.update([
             "path",
             env=dict(obs_features=OBS_15 + ("tip_error", "target_preview"), feedforward=True,
                      reward_after_s=0.5), lr_schedule="linear"),
-    # The same knowledge, encoded as what the policy cannot read from the present target:
-    # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
-    # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.
-    # Here each look-ahead's Taylor residual per h^3 (config.OBS_SCALE's preview_jerk), over
-    # look-aheads from 0.02 s (a fifth of the servo lag the analytic lead's tau of 0.04 s
-    # covers) to 0.3 s.
     # Does the path ahead pay once the causal lead is learned? preview_5m learned from scratch
     # and stayed 0.63 cm behind the causal study; here both arms start from the headline
     # study's trained seeds and train on, one with the path ahead added (zero weights on it at
@@ -377,6 +371,12 @@ PRESETS.update([
             "study's trained seed, the path ahead at zero weight (36-D): knows the planned "
             "path", env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
             lr_schedule="linear", init_from=HEADLINE_SEEDS),
+    # The same knowledge, encoded as what the policy cannot read from the present target:
+    # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
+    # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.
+    # Here each look-ahead's Taylor residual per h^3 (config.OBS_SCALE's preview_jerk), over
+    # look-aheads from 0.02 s (a fifth of the servo lag the analytic lead's tau of 0.04 s
+    # covers) to 0.3 s.
     _preset("v5_err_decay_preview_jerk", "v5_err_decay + the planned path's jerk ahead over "
             "0.02-0.3 s (the target's future positions minus their Taylor guess, per h^3; "
             "36-D): knows the planned path",

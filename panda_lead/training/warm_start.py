@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..config import obs_layout
 from ..errors import UserError
-from ..models import ModelError, _read_tensors, check_finite_weights, file_sha256, verify
+from ..models import file_sha256, load_policy, verify
 
 # The first layer of each MLP: the only tensors whose shape follows the observation.
 FIRST_LAYERS = ("mlp_extractor.policy_net.0.weight", "mlp_extractor.value_net.0.weight")
@@ -67,10 +67,8 @@ def warm_start(model, template: str, config) -> dict:
     import torch
 
     path, side = check_init_from(template, config.seed, config)
-    state = _read_tensors(path, "policy.pth", model.device)
-    if not isinstance(state, dict):
-        raise ModelError(f"{path}: cannot load model (policy.pth holds no state dict)")
-    check_finite_weights(state, path)
+    # models.load_policy: the weights checked finite and against the sidecar, never unpickled
+    state = load_policy(path, str(model.device))[0].state_dict()
     target = model.policy.state_dict()
     if set(state) != set(target):
         raise UserError(f"--init-from {path}: its tensors ({len(state)}) are not this run's "
