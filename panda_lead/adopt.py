@@ -24,6 +24,11 @@ relu; spaces that differ from the env's; observations normalised by VecNormalize
 running statistics live only in a pickle (RL Zoo's ``vecnormalize.pkl``) and without which
 the weights see other inputs than they were trained on; an RL Zoo run whose ``env_kwargs``
 differ from the env config given; an archive name in use (without ``--force``).
+
+A model of this repo (its sidecar beside it) can be adopted too: the env config is then its
+sidecar's plus the flags given, so that a deployment setting the model was not trained with
+(``--env.noisy-lead-filter-hz 10``) becomes an archive entry of its own, with its card and
+the source's sha256.
 """
 
 from __future__ import annotations
@@ -419,6 +424,26 @@ def inspect(path: str | Path, env_config: EnvConfig) -> Foreign:
                    str(folder) if folder is not None else None)
 
 
+def own_model(path: Path, overrides: dict) -> tuple[Foreign, EnvConfig, dict]:
+    """A model of this repo, loaded as every model is (models.load_policy: the bound sidecar's
+    architecture, weights only), its sidecar's env plus ``overrides``, which must keep the
+    model's spaces, and the sidecar's env as it was."""
+    from .models import load_policy
+
+    policy, env, side = load_policy(path)
+    env_config = EnvConfig.from_dict(env).merged(overrides)
+    want = tuple(s.shape for s in spaces_for(env_config))
+    have = (policy.observation_space.shape, policy.action_space.shape)
+    if want != have:
+        raise _refuse(path, f"the settings given make a {want[0][0]}-D observation and a "
+                            f"{want[1][0]}-D action; the model has {have[0][0]} and {have[1][0]}")
+    train = side.get("train_config") if isinstance(side.get("train_config"), dict) else {}
+    hyper = {k: train[k] for k in HYPERPARAMS if isinstance(train.get(k), int | float)
+             and not isinstance(train.get(k), bool)}
+    return Foreign(path, side["policy"], policy.state_dict(), side.get("timesteps", 0),
+                   side.get("sb3_version", "?"), hyper), env_config, env
+
+
 def _sb3_model(foreign: Foreign, env_config: EnvConfig):
     """A fresh PPO built here from the spec (on a stand-in env with the right spaces), holding
     the adopted weights: what the archive stores, in SB3's format, made by this code."""
@@ -456,10 +481,15 @@ def adopt(src: str | Path, name: str, overrides: dict | None = None, force: bool
 
     check_plain_name(name, "--name")
     src = Path(src)
-    env_config = EnvConfig().merged(overrides or {})
     # fail before the work; checked again under the lock
     check_archive_free(name, force, flag="--name")
-    foreign = inspect(src, env_config)
+    changed = None
+    if sidecar_path(src).is_file():  # this repo's own model: its env, then the flags given
+        foreign, env_config, before = own_model(src, overrides or {})
+        changed = {k: v for k, v in env_config.to_dict().items() if before.get(k) != v}
+    else:
+        env_config = EnvConfig().merged(overrides or {})
+        foreign = inspect(src, env_config)
     obs_space, act_space = spaces_for(env_config)
     policy = ActorCriticPolicy(obs_space, act_space, lambda _: 0.0,
                                **policy_kwargs_of({"policy": foreign.spec}))
@@ -479,7 +509,8 @@ def adopt(src: str | Path, name: str, overrides: dict | None = None, force: bool
     seed0 = card_number(policy, env_dict)
     adopted = {"sha256": file_sha256(src), "sb3_version": foreign.sb3_version,
                "algo": "PPO", "hyperparams": foreign.hyperparams,
-               **({"rl_zoo_run": foreign.zoo_run} if foreign.zoo_run else {})}
+               **({"rl_zoo_run": foreign.zoo_run} if foreign.zoo_run else {}),
+               **({"env_changed": changed} if changed is not None else {})}
     sidecar = {"env_config": env_dict, "timesteps": foreign.timesteps, "test_metrics": test,
                "test_seed0_mean_error_cm": seed0, "name": name, "source": str(src),
                "adopted": adopted}

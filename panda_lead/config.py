@@ -83,8 +83,9 @@ OBS_12 = ("ee_pos", "ee_vel", "target_pos", "target_vel")
 OBS_15 = OBS_12 + ("target_acc",)
 OBS_29 = OBS_15 + ("joint_pos", "joint_vel")
 DEFAULT_OBS = OBS_15
-REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", "alive",
-                "termination")
+REWARD_TERMS = ("distance", "tracking", "action", "action_change", "collision", "limit",
+                "alive", "termination")
+LIMIT_FROM_S = 0.5  # the limit term, as the arm's check (studies/deploy.py), skips the swing
 
 
 def failure_label(unstable: bool) -> str:
@@ -177,6 +178,12 @@ class EnvConfig:
     """Weight of -|action - previous action|^2."""
     w_collision: float = 0.0
     """Weight of -penetration depth (per metre) of the deepest self-collision in the step."""
+    w_limit: float = 0.0
+    """Weight of -(the commanded joint goals' acceleration over the Panda's limit), per joint
+    the excess (|second difference of the 100 Hz goals| / limits.JOINT_ACC - 1) clipped to
+    [0, 1] and summed, from 0.5 s on (the swing from home is left out, as the arm's check
+    leaves it). Saturating: a path no controller can run within the limits pushes no gradient;
+    one near them is pushed under."""
     w_alive: float = 0.0
     """Bonus per step."""
     w_termination: float = 0.0
@@ -240,6 +247,13 @@ class EnvConfig:
     libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
     1 - exp(-2 pi f dt) of the way to the action's each control step (from 0 at reset), so a
     policy trained with it learns to act through it."""
+    noisy_lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
+    """The same low-pass on the lead, in the episodes whose sensors are noisy only (obs_noise
+    non-zero; under random_noise, the episodes not drawn noise-free); where the readings are
+    exact the lead passes unfiltered, bit for bit. A gain scheduled on the installation's
+    noise, as the tracker's Kalman gain is (target_filter): a noisy camera's lead is smoothed,
+    an exact one's is not delayed. Tuned per model on the tuning seeds (`studies/deploy.py
+    --tune-lead-filter`); not with lead_filter_hz. 0: none."""
     preview_times: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
     """The `target_preview` observation's look-aheads (s; 6 increasing, in (0, 1]): it holds
     the target's future positions p(t + h) - p(t), what a controller that knows the planned
@@ -334,6 +348,9 @@ class EnvConfig:
             if isinstance(cap, bool) or not isinstance(cap, int | float) or not cap > 0.25:
                 raise UserError(f"max_peak_speed must be a speed above 0.25 m/s, got {cap!r}")
             set_("max_peak_speed", float(cap))
+        if self.lead_filter_hz and self.noisy_lead_filter_hz:
+            raise UserError("lead_filter_hz filters the lead always, noisy_lead_filter_hz under "
+                            "noise only: set one of them")
         if self.tracking_scale <= 0:
             raise UserError(f"tracking_scale must be > 0, got {self.tracking_scale}")
 

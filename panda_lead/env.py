@@ -100,7 +100,9 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     reward exactly); ``d`` is the tip-target distance (m) after the step:
     distance ``-w_distance*d``; tracking ``w_tracking*exp(-d/tracking_scale)``; action
     ``-w_action*|a|^2``; action_change ``-w_action_change*|a - a_prev|^2``; collision
-    ``-w_collision*depth`` (deepest self-collision penetration in m); alive ``w_alive``;
+    ``-w_collision*depth`` (deepest self-collision penetration in m); limit ``-w_limit*``
+    the joint goals' acceleration over the Panda's limits (clipped excess, from 0.5 s on);
+    alive ``w_alive``;
     termination ``-w_termination`` on the step that terminates.
 
     ## Starting state

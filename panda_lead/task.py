@@ -13,6 +13,7 @@ import numpy as np
 
 from . import kalman, trajectory
 from .config import (
+    LIMIT_FROM_S,
     OBS_SCALE,
     PATH_FEATURES,
     REWARD_TERMS,
@@ -81,6 +82,7 @@ class LeadTask:
         self.action_delay = np.full(n, c.action_delay)
         self.target_delay = np.full(n, c.target_delay)  # the target camera's, per slot
         self.noise_scale = np.ones(n)  # each slot's episode's share of obs_noise (random_noise)
+        self._goal_hist = np.zeros((n, 2, 7))  # the last two joint goals (w_limit's term)
         # the installation feature: each slot's latencies and target noise (config.OBS_SCALE)
         self._installation = np.zeros((n, 4))
         self._installation_cols = next((slice(a, b) for f, a, b in self.layout
@@ -117,8 +119,11 @@ class LeadTask:
                                  controllers.FEEDFORWARD_TAU_IK / self.dt,
                                  controllers.FEEDFORWARD_GAIN)
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
-        self._lead_alpha = (1.0 - np.exp(-2 * np.pi * c.lead_filter_hz * self.dt)
-                            if c.lead_filter_hz > 0 else None)
+        # (noisy_lead_filter_hz: the slots whose episode is noisy, set at each reset)
+        hz = c.lead_filter_hz or (c.noisy_lead_filter_hz if any(c.obs_noise.values()) else 0)
+        self._lead_alpha = 1.0 - np.exp(-2 * np.pi * hz * self.dt) if hz > 0 else None
+        self._lead_smoothed = (np.ones(n, bool) if c.noisy_lead_filter_hz and self._lead_alpha
+                               else None)
 
     def _set_up_noise(self, base: int) -> None:
         """The sensors' noise (EnvConfig.obs_noise). Each feature gets its own Gaussian draw,
@@ -180,6 +185,7 @@ class LeadTask:
             trajs.append(traj)
         core = self.core
         core.reset(ids, trajs, self.config.episode_steps)
+        self._goal_hist[ids] = core.q_goal[ids, None]
         self._reachable[ids] = reachable(core.target_pos[ids])
         if self._preview_observed:
             self._set_preview(ids)
@@ -195,6 +201,8 @@ class LeadTask:
             for i in ids:
                 self.noise_scale[i] = self.rngs[i].uniform()
             self.noise_scale[nominal] = 0.0
+        if self._lead_smoothed is not None:  # the lead's low-pass in the noisy episodes only
+            self._lead_smoothed[ids] = self.noise_scale[ids] > 0
         for reading_filter in self._filters:  # (the filter of each episode's noise level)
             reading_filter.restart(ids, self.noise_scale[ids])
         self._set_installation(ids)
@@ -366,6 +374,7 @@ class LeadTask:
             "action": -w["action"] * np.einsum("ij,ij->i", action, action),
             "action_change": -w["action_change"] * np.einsum("ij,ij->i", da, da),
             "collision": -w["collision"] * core.collision_depth,
+            "limit": self._limit_term(core) if w["limit"] else np.zeros(self.n),
             "alive": self._alive.copy(),
             "termination": np.where(terminated, -w["termination"], 0.0),
         }
@@ -381,6 +390,20 @@ class LeadTask:
                 "collision_depth": core.collision_depth, "unstable": unstable,
                 "reachable": self._reachable[self._all, k], "lead": self.lead}
         return obs, reward, terminated, truncated, info
+
+    def _limit_term(self, core) -> np.ndarray:
+        """-w_limit * the joint goals' clipped acceleration excess (EnvConfig.w_limit): the
+        second difference of this step's goal and the two before (none before the third step
+        of an episode, and none before LIMIT_FROM_S)."""
+        from .limits import JOINT_ACC
+
+        goals, k = self._goal_hist, core.step_count
+        acc = (core.q_goal - 2 * goals[:, 0] + goals[:, 1]) / self.dt ** 2
+        goals[:, 1] = goals[:, 0]
+        goals[:, 0] = core.q_goal
+        excess = np.minimum(np.maximum(np.abs(acc) / JOINT_ACC - 1.0, 0.0), 1.0).sum(axis=1)
+        counts = (k >= 3) & (core.time >= LIMIT_FROM_S - 1e-9)
+        return np.where(counts, -self._w["limit"] * excess, 0.0)
 
     def _new_core(self, n: int, nthread: int) -> ArmBatch:
         """The arms the task runs on."""
@@ -436,8 +459,10 @@ class LeadTask:
             if self._lead_alpha is None:
                 self.lead = applied * self.config.max_lead
             else:  # a new array: info["lead"] of the last step is not written over
-                self.lead = self.lead + self._lead_alpha * (applied * self.config.max_lead
-                                                            - self.lead)
+                goal = applied * self.config.max_lead
+                lead = self.lead + self._lead_alpha * (goal - self.lead)
+                self.lead = (lead if self._lead_smoothed is None
+                             else np.where(self._lead_smoothed[:, None], lead, goal))
             if self._feedforward is not None:
                 core.step(*self._feedforward_step(self.lead))
             else:

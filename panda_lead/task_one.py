@@ -66,7 +66,7 @@ class LeadTaskOne(LeadTask):
         # the weights, signed as step_one's terms use them (one unpack, not a dict lookup each)
         self._signed_w = (-self._w["distance"], self._w["tracking"], -self._w["action"],
                           -self._w["action_change"], -self._w["collision"], self._w["alive"],
-                          -self._w["termination"])
+                          -self._w["termination"])  # (limit: not on the lean route)
         self._reward_from = c.reward_after_s - 1e-9  # step()'s threshold on the time
         # row views of slot 0 (these arrays are only ever written in place)
         self._ee_vel_row, self._prev_ee_row = self.ee_vel[0], self._prev_ee[0]
@@ -75,9 +75,10 @@ class LeadTaskOne(LeadTask):
         # Python floats (the lead is the action times max_lead, as _control computes it).
         self._lean_lead = (isinstance(self.core, ArmOne) and self.core.lean
                            and c.action == "lead" and not self._delayed
-                           and not c.lead_filter_hz and not c.target_delay
+                           and not c.lead_filter_hz and not c.noisy_lead_filter_hz
+                           and not c.target_delay
                            and not c.noisy_ik_target and not c.target_filter
-                           and not c.arm_filter and not c.feedforward)
+                           and not c.arm_filter and not c.feedforward and not c.w_limit)
         self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
         self._action_weighed = bool(c.w_action or c.w_action_change)
         self._offset_rows = self._jerk_rows = None  # the preview's rows (reset sets them)
@@ -188,6 +189,7 @@ class LeadTaskOne(LeadTask):
                 "action": float(w_act * sq),
                 "action_change": float(w_change * dsq),
                 "collision": w_coll * depth,
+                "limit": 0.0,
                 "alive": w_alive,
                 "termination": w_term if terminated else 0.0,
             }

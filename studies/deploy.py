@@ -78,9 +78,16 @@ class Args:
     """Seconds per episode."""
     force: bool = False
     """Replace an existing deploy.md and deploy.png."""
+    noisy_lead_filter_hz: float | None = None
+    """Run every model with this lead low-pass under noise (EnvConfig.noisy_lead_filter_hz;
+    off without noise), over each model's own setting; the models' labels say so."""
     tune_filter: bool = False
     """Instead of the table: tune the Kalman filter's jerk density on the tuning seeds at 1 cm
     of noise and print each candidate's mean error."""
+    tune_lead_filter: Path | None = None
+    """Instead of the table: tune this model's lead low-pass under noise (EnvConfig.
+    noisy_lead_filter_hz) on the tuning seeds at 1 cm of noise: each cutoff's mean error and
+    jerk, and the rule's choice, the lowest jerk at no more error than without the filter."""
 
 
 def overrides(cond: str) -> dict:
@@ -101,7 +108,8 @@ def overrides(cond: str) -> dict:
     return settings
 
 
-def controllers_for(cond: str, models: list[Path], steps: int) -> dict:
+def controllers_for(cond: str, models: list[Path], steps: int,
+                    lead_hz: float | None = None) -> dict:
     """label -> harness.Controller under one condition: the baselines, the rival an engineer
     would field under this condition, and each model."""
     from panda_lead import controllers, harness
@@ -122,7 +130,10 @@ def controllers_for(cond: str, models: list[Path], steps: int) -> dict:
             {**analytic.meta, "controller": "analytic+predict"},
             controllers.make_predicting_analytic())
     for path, label in zip(models, harness.model_labels(models), strict=True):
-        out[label] = harness.build("policy", steps, path, settings)
+        if lead_hz is not None:
+            label = f"{label} + lead low-pass {lead_hz:g} Hz under noise"
+        out[label] = harness.build("policy", steps, path, settings if lead_hz is None else
+                                   {**settings, "noisy_lead_filter_hz": lead_hz})
     return out
 
 
@@ -162,12 +173,16 @@ def main(args: Args) -> None:
     steps = int(round(args.duration / control_dt()))
     if args.tune_filter:
         return tune_filter(steps)
+    if args.tune_lead_filter is not None:
+        if not args.tune_lead_filter.is_file():
+            raise UserError(f"no model file {args.tune_lead_filter}")
+        return tune_lead_filter(args.tune_lead_filter, steps)
     outputs = [args.out / "deploy.md", args.out / "deploy.png"]
     if any(p.exists() for p in outputs) and not args.force:
         raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
     rows, t0 = [], time.perf_counter()
     for cond in args.conditions:
-        ctrls = controllers_for(cond, args.models, steps)
+        ctrls = controllers_for(cond, args.models, steps, args.noisy_lead_filter_hz)
         sets = {name: _play(c, seeds) for name, c in ctrls.items()}
         checks = {name: accepted_by_arm(rs) for name, rs in sets.items()}
         for name, rs in sets.items():
@@ -226,6 +241,8 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
     models = f" --models {' '.join(map(str, args.models))}" if args.models else ""
     extra = "" if args.conditions == list(DEFAULT_CONDITIONS) else \
         f" --conditions {' '.join(args.conditions)}"
+    if args.noisy_lead_filter_hz is not None:
+        extra += f" --noisy-lead-filter-hz {args.noisy_lead_filter_hz:g}"
     lines = [f"`uv run studies/deploy.py{models} --seeds {args.seeds}{extra}` "
              f"({len(seeds)} test seeds, {time.strftime('%Y-%m-%d')}, commit {_commit()}).",
              "",
@@ -320,6 +337,37 @@ def tune_filter(steps: int) -> None:
         m = [rollout_metrics(r, 0.5) for r in rs.values()]
         print(f"jerk_psd {psd:8.0e}: mean error {np.mean([x['mean_err'] for x in m]):.3f} cm, "
               f"jerk {np.mean([x['jerk_rms'] for x in m]):.0f} m/s^3", flush=True)
+
+
+def choose_cutoff(found: dict[float, tuple[float, float]]) -> float:
+    """cutoff (Hz; 0: none) -> (mean error, jerk): of the cutoffs whose error is no higher than
+    without the filter, the one with the least jerk."""
+    return min((hz for hz in found if found[hz][0] <= found[0.0][0]), key=lambda h: found[h][1])
+
+
+LEAD_FILTER_HZ = (0.0, 40.0, 30.0, 20.0, 15.0, 12.0, 10.0, 9.0, 8.0, 6.0, 5.0)
+
+
+def tune_lead_filter(model: Path, steps: int) -> float:
+    """The model's lead low-pass under noise (noisy_lead_filter_hz), chosen on the tuning seeds
+    at 1 cm: of the cutoffs whose mean error is no higher than without the filter (0 Hz), the
+    one with the least jerk. Without noise the filter is off, so no other row can move."""
+    from panda_lead import harness
+    from panda_lead.metrics.stats import rollout_metrics
+    from panda_lead.seeds import TUNE_SEEDS
+
+    found = {}
+    for hz in LEAD_FILTER_HZ:
+        ctrl = harness.build("policy", steps, model, {**overrides("noise1"),
+                                                      "noisy_lead_filter_hz": hz})
+        m = [rollout_metrics(r, SKIP_S) for r in _play(ctrl, list(TUNE_SEEDS)).values()]
+        found[hz] = (np.mean([x["mean_err"] for x in m]), np.mean([x["jerk_rms"] for x in m]))
+        print(f"noisy_lead_filter_hz {hz:4.0f}: mean error {found[hz][0]:.3f} cm, jerk "
+              f"{found[hz][1]:.0f} m/s^3", flush=True)
+    best = choose_cutoff(found)
+    print(f"chosen: {best:g} Hz (the least jerk at no more error than without the filter; "
+          f"tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]})")
+    return best
 
 
 if __name__ == "__main__":

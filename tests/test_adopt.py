@@ -313,3 +313,29 @@ def test_adopted_model_is_a_bound_carded_archive_entry(tmp_path, capsys):
     after = json.loads((archive / "mine.json").read_text())
     assert after["test_metrics"] == json.loads(before)["test_metrics"]
     verify(archive / "mine.zip")
+
+
+def test_a_model_of_this_repo_is_adopted_with_its_own_env_and_the_flags_given(tiny_run, tmp_path,
+                                                                             capsys):
+    """Adopting one of this repo's models starts from its sidecar's env, not the defaults: a
+    deployment setting (the lead's low-pass under noise) becomes an archive entry of its own,
+    the weights unchanged."""
+    from panda_lead.models import copy_with_sidecar
+
+    tmp, _, _, _ = tiny_run
+    tiny = tmp / "archive" / "tiny.zip"
+    env = {**verify(tiny)["env_config"], "max_lead": 0.1}  # not the default
+    src = tmp_path / "src.zip"
+    copy_with_sidecar(tiny, src, {"env_config": env})
+    code, out, err = cli(["--adopt", src, "--name", "smoothed", "--env.noisy-lead-filter-hz",
+                          "10"], tmp_path, capsys)
+    assert code == 0, err
+    side = verify(tmp_path / "archive" / "smoothed.zip")
+    assert side["env_config"] == {**env, "noisy_lead_filter_hz": 10.0}
+    assert side["adopted"]["env_changed"] == {"noisy_lead_filter_hz": 10.0}
+    card = (tmp_path / "archive" / "smoothed.md").read_text()
+    assert "its weights unchanged; run with noisy_lead_filter_hz = 10.0" in card
+    mine, _, _ = load_policy(tmp_path / "archive" / "smoothed.zip")
+    theirs, _, _ = load_policy(src)
+    assert all(torch.equal(a, b) for a, b in zip(mine.state_dict().values(),
+                                                 theirs.state_dict().values(), strict=True))

@@ -205,6 +205,10 @@ SINGLE_CONFIGS = {
     "clearance": dict(ik={"clearance": 0.02}),
     "iters": dict(ik={"iters": 3, "max_step": 0.02}),
     "lead_filter": dict(lead_filter_hz=8.0, obs_features=("tip_error", "prev_action")),
+    # the lead's low-pass in the noisy episodes only (half of them drawn noise-free)
+    "noisy_lead_filter": dict(noisy_lead_filter_hz=10.0, random_noise=True, nominal_share=0.5,
+                              obs_features=("tip_error", "prev_action"),
+                              obs_noise={"target_pos": 0.01}),
     "target_camera": dict(target_delay=2, obs_features=OBS_FEATURES),
     # the camera's delay and the noise's level drawn per episode, the IK at the noisy reading
     "random_camera": dict(target_delay=3, random_delay=True, random_noise=True,

@@ -14,6 +14,7 @@ import pytest
 from panda_lead import controllers
 from panda_lead.config import OBS_SCALE, EnvConfig
 from panda_lead.core import analytic_lead
+from panda_lead.errors import UserError
 from panda_lead.task import LeadTask
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,6 +206,38 @@ def test_the_lead_filter_is_a_first_order_low_pass_in_the_loop():
     filtered.reset(None, [4])
     assert np.allclose(filtered.step(action)[4]["lead"][0],
                        action[0] * filtered.config.max_lead * alpha)
+
+
+def test_the_noisy_lead_filter_smooths_the_noisy_episodes_and_no_other():
+    """noisy_lead_filter_hz: in an episode whose sensors are noisy the lead is lead_filter_hz's
+    low-pass of the action; in one drawn noise-free (random_noise's nominal share), or where
+    obs_noise is empty, the lead is the action's, bit for bit, and so is the arm."""
+    hz, noise = 10.0, {"target_pos": 0.01}
+    common = dict(episode_steps=20, obs_features=("tip_error", "target_pos"))
+    smoothed = LeadTask(EnvConfig(**common, obs_noise=noise, lead_filter_hz=hz), 1, nthread=1)
+    noisy = LeadTask(EnvConfig(**common, obs_noise=noise, noisy_lead_filter_hz=hz), 1,
+                     nthread=1)
+    exact = LeadTask(EnvConfig(**common, noisy_lead_filter_hz=hz), 1, nthread=1)
+    plain = LeadTask(EnvConfig(**common), 1, nthread=1)
+    for task in (smoothed, noisy, exact, plain):
+        task.reset(None, [5])
+    rng = np.random.default_rng(0)
+    for _ in range(8):
+        action = rng.uniform(-1, 1, (1, 3))
+        leads = [task.step(action)[4]["lead"][0].copy() for task in (smoothed, noisy, exact,
+                                                                     plain)]
+        np.testing.assert_array_equal(leads[1], leads[0])  # noisy: filtered as always
+        np.testing.assert_array_equal(leads[2], leads[3])  # exact: unfiltered
+        assert not np.allclose(leads[1], leads[3])
+    np.testing.assert_array_equal(exact.core.qpos, plain.core.qpos)
+    # random_noise with every episode drawn nominal (noise-free): no slot is filtered
+    free = LeadTask(EnvConfig(**common, obs_noise=noise, noisy_lead_filter_hz=hz,
+                              random_noise=True, nominal_share=1.0), 2, nthread=1)
+    free.reset(None, [5, 6])
+    action = np.array([[1.0, -0.5, 0.25]] * 2)
+    np.testing.assert_array_equal(free.step(action)[4]["lead"], action * free.config.max_lead)
+    with pytest.raises(UserError, match="set one of them"):
+        EnvConfig(lead_filter_hz=5.0, noisy_lead_filter_hz=5.0)
 
 
 def test_the_target_camera_delays_the_target_for_the_ik_and_the_lead_alike():
@@ -508,3 +541,48 @@ def test_nominal_episodes_have_no_delay_no_noise_and_a_pass_through_filter():
     assert np.allclose(inst[quiet], 0.0)
     with pytest.raises(Exception, match="nominal_share .* needs random_delay or random_noise"):
         EnvConfig(nominal_share=0.5)
+
+
+def test_the_lead_filter_rule_takes_the_least_jerk_at_no_more_error(tiny_run):
+    """deploy.py's tuning rule for noisy_lead_filter_hz, and the flag that runs every model
+    with a cutoff: the model gets it (labelled), the rivals do not."""
+    deploy = _deploy_module()
+    found = {0.0: (2.10, 690.0), 20.0: (1.95, 620.0), 10.0: (2.07, 570.0), 5.0: (2.60, 530.0)}
+    assert deploy.choose_cutoff(found) == 10.0  # 5 Hz is smoother but less precise
+    assert deploy.choose_cutoff({0.0: (2.0, 690.0), 10.0: (2.01, 500.0)}) == 0.0
+    tmp, _, _, _ = tiny_run
+    ctrls = deploy.controllers_for("noise1", [tmp / "archive" / "tiny.zip"], 10, lead_hz=12.0)
+    (label,) = [k for k in ctrls if "tiny" in k]
+    assert label.endswith("lead low-pass 12 Hz under noise")
+    assert ctrls[label].config.noisy_lead_filter_hz == 12.0
+    assert ctrls["Analytic+filter"].config.noisy_lead_filter_hz == 0.0
+
+
+def test_the_limit_term_charges_the_joint_goals_clipped_acceleration_excess():
+    """w_limit: per step, -w * sum over joints of clip(|second difference of the 100 Hz joint
+    goals| / the Panda's acceleration limit - 1, 0, 1), from 0.5 s on; the single env (which
+    leaves its lean route for it) agrees with the batched one."""
+    from panda_lead.env import PandaLeadEnv
+    from panda_lead.limits import JOINT_ACC
+
+    w, steps = 0.02, 90
+    task = LeadTask(EnvConfig(episode_steps=steps, w_limit=w), 1, nthread=1)
+    single = PandaLeadEnv(episode_steps=steps, w_limit=w)
+    task.reset(None, [11])
+    single.reset(options={"traj_seed": 11})
+    rng = np.random.default_rng(1)
+    goals, charged = [task.core.q_goal[0].copy()], 0
+    for k in range(1, steps + 1):
+        action = rng.uniform(-1, 1, (1, 3)).astype(np.float32)
+        terms = task.step(action)[4]["reward_terms"]
+        one = single.step(action[0])[4]["reward_terms"]
+        goals.append(task.core.q_goal[0].copy())
+        if k * task.dt < 0.5 - 1e-9:
+            want = 0.0
+        else:
+            acc = (goals[-1] - 2 * goals[-2] + goals[-3]) / task.dt ** 2
+            want = -w * np.clip(np.abs(acc) / JOINT_ACC - 1, 0, 1).sum()
+        assert terms["limit"][0] == pytest.approx(want, abs=1e-12)
+        assert one["limit"] == pytest.approx(want, abs=1e-9)
+        charged += want < 0
+    assert charged > 10  # random leads break the limits: the term is exercised

@@ -46,7 +46,8 @@ class AdoptArgs:
     """Archive name: writes archive/NAME.zip, NAME.json and NAME.md (in the working folder)."""
     env: EnvOverrides = field(default_factory=EnvOverrides)  # type: ignore[valid-type]
     """The env settings the model was trained with, over the env's defaults (only the flags
-    given), e.g. --env.obs-features ee_pos ee_vel target_pos target_vel."""
+    given), e.g. --env.obs-features ee_pos ee_vel target_pos target_vel; over the model's own
+    sidecar where it has one (a model of this repo)."""
     force: bool = False
     """Replace an existing archive/NAME."""
 

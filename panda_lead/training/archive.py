@@ -218,8 +218,13 @@ def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
     started = (f" Started from `{start.get('path', '?')}` (sha256 "
                f"`{str(start.get('sha256', '?'))[:12]}`), not from random weights: its steps "
                "are on top of that model's." if start else "")
+    adopted = side.get("adopted") or {}
+    changed = adopted.get("env_changed")
+    source = (f"this repo's model, sha256 `{str(adopted.get('sha256', '?'))[:12]}`, its weights "
+              f"unchanged; run with {', '.join(f'{k} = {v!r}' for k, v in changed.items())}"
+              if changed is not None else "trained outside this repo's train.py")
     origin = (f"{when}, code commit `{side.get('commit', '?')}`.{started}" if train else
-              f"Adopted from `{side.get('source', '?')}` (trained outside this repo's train.py).")
+              f"Adopted from `{side.get('source', '?')}` ({source}).")
     caveats = "".join(f"\n**Caveat.** {c}\n" for c in side.get("caveats", []))
     action = side["env_config"].get("action", "lead")
     what = {"lead": "a Cartesian lead added to the IK target of a classical IK+PD",
