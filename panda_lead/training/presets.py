@@ -327,6 +327,15 @@ PRESETS.update([
             "seed (deploy_large_batch_5m_s<seed>: 5M steps before this run's): the control of "
             "deploy_large_batch_from_headline (25-D)", **DEPLOY_LARGE_BATCH,
             init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
+    # ... with the limit term (w_limit): the 10M-step lead is accepted by the arm on 3 points
+    # fewer trajectories than the analytic lead at 10 and 30 ms of latency, all of it the
+    # joint-2 acceleration; on the paths near the limits (worst margin 0.5-1.5) its commanded
+    # joint accelerations are about twice the analytic lead's (tuning seeds). Same start and
+    # budget as deploy_large_batch_continued, its control: only the term differs.
+    _preset("deploy_large_batch_limit_continued", "deploy_large_batch_continued with the "
+            "Panda's joint acceleration limits in the reward (w_limit 0.01) (25-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.01)},
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
