@@ -180,11 +180,14 @@ def main(args: Args) -> None:
     outputs = [args.out / "deploy.md", args.out / "deploy.png"]
     if any(p.exists() for p in outputs) and not args.force:
         raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
-    rows, t0 = [], time.perf_counter()
+    rows, rival_rows, t0 = [], [], time.perf_counter()
     for cond in args.conditions:
         ctrls = controllers_for(cond, args.models, steps, args.noisy_lead_filter_hz)
         sets = {name: _play(c, seeds) for name, c in ctrls.items()}
         checks = {name: accepted_by_arm(rs) for name, rs in sets.items()}
+        rival = next((r for r in RIVALS if r in sets), None)
+        for name in list(sets)[len(sets) - len(args.models):] if rival and args.models else []:
+            rival_rows.append(_rival_row(cond, rival, name, sets, args.bootstrap))
         for name, rs in sets.items():
             rows.append(_row(cond, name, sets["Analytic"], rs, checks["Analytic"],
                              checks[name], args.bootstrap))
@@ -195,7 +198,7 @@ def main(args: Args) -> None:
         del sets
     from panda_lead.atomicio import atomic_write
 
-    text = table(args, rows, seeds)
+    text = table(args, rows, seeds) + rival_table(rival_rows)
     args.out.mkdir(parents=True, exist_ok=True)
     with atomic_write(outputs[0], ".tmp.md") as tmp:
         Path(tmp).write_text(text)
@@ -233,6 +236,35 @@ def _row(cond: str, name: str, analytic: dict, rollouts: dict, checks_a: dict, c
             "margin": float(np.median([checks[s].worst_margin for s in cmp.seeds])),
             "limit": max(hit, key=hit.get), "n": len(cmp.seeds),
             "charged": len(cmp.pairing.charged[name])}
+
+
+RIVALS = ("Analytic+filter", "Analytic+predict")  # the rival each condition calls for
+
+
+def _rival_row(cond: str, rival: str, name: str, sets: dict, n_boot: int) -> dict:
+    """A model against the rival a good engineer would field under this condition, paired."""
+    from panda_lead.metrics import compare
+
+    cmp = compare(sets[rival], sets[name], n_boot=n_boot, label_a=rival, label_b=name)
+    return {"cond": cond, "rival": rival, "name": name, "err": cmp.row("mean_err"),
+            "settled": cmp.row("settled_err"), "jerk": cmp.row("jerk_rms")}
+
+
+def rival_table(rows: list[dict]) -> str:
+    """Each model minus the condition's rival (the filtered analytic lead under noise, the
+    predicting one under latency and a late camera): the targets of issue 36 compare there."""
+    from panda_lead.metrics import row_diff
+
+    if not rows:
+        return ""
+    lines = ["", "Against the rival each condition calls for (model - rival, paired by seed, "
+             "95% bootstrap CIs, the same rule):", "",
+             "| condition | model | rival | error (cm) | settled (cm) | jerk (m/s^3) |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {LABELS[r['cond']]} | {r['name']} | {r['rival']} | {row_diff(r['err'])}"
+                     f" | {row_diff(r['settled'])} | {row_diff(r['jerk'], fmt='.0f')} |")
+    return "\n".join(lines) + "\n"
 
 
 def table(args: Args, rows: list[dict], seeds: list[int]) -> str:

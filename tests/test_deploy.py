@@ -586,3 +586,21 @@ def test_the_limit_term_charges_the_joint_goals_clipped_acceleration_excess():
         assert one["limit"] == pytest.approx(want, abs=1e-9)
         charged += want < 0
     assert charged > 10  # random leads break the limits: the term is exercised
+
+
+def test_deploy_compares_each_model_with_the_rival_its_condition_calls_for(tiny_run, tmp_path):
+    """The second table: a model minus the filtered analytic lead under noise and minus the
+    predicting one under latency (none without delay or noise), with the command's flags."""
+    deploy = _deploy_module()
+    tmp, _, _, _ = tiny_run
+    args = deploy.Args(models=[tmp / "archive" / "tiny.zip"], seeds="0-1",
+                       conditions=["none", "noise1", "delay1"], out=tmp_path, bootstrap=100,
+                       duration=0.8, noisy_lead_filter_hz=10.0)
+    deploy.main(args)
+    text = (tmp_path / "deploy.md").read_text()
+    assert "--noisy-lead-filter-hz 10`" in text.splitlines()[0]
+    rival = text.split("Against the rival")[1]
+    rows = [line.split(" | ")[:3] for line in rival.splitlines() if line.startswith("| ")][1:]
+    label = "tiny + lead low-pass 10 Hz under noise"
+    assert rows == [["| noise 1 cm", label, "Analytic+filter"],
+                    ["| latency 1 step (10 ms)", label, "Analytic+predict"]]
