@@ -93,11 +93,11 @@ ROWS = ("none", "delay1", "delay3", "camera3", "noise1", "noise2")
 
 
 def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS,
-            seeds: str = "0-99") -> Step:
+            seeds: str = "0-99", *extra: str) -> Step:
     """studies/deploy.py's table and figure for these models on test seeds 0-99 (or others)."""
     return Step((f"{out_dir}/deploy.md", f"{out_dir}/deploy.png"),
                 ("studies/deploy.py", "--models", *models, "--seeds", seeds, "--conditions",
-                 *conditions, "--out", "{dir}"), tuple(models), section="all")
+                 *conditions, *extra, "--out", "{dir}"), tuple(models), section="all")
 
 
 def _five_seeds(study: str, against: str) -> list[Step]:
@@ -361,6 +361,16 @@ def table_steps() -> list[Step]:
     chosen = [f"{a}deploy_large_batch_10m.zip", f"{a}deploy_large_batch_wide_5m.zip"]
     steps.append(_deploy(chosen, "results/studies/deploy_large_batch_continued_5m/test1000",
                          seeds="0-999"))
+    # ... with the lead's low-pass under noise only (10 Hz, tuned on the tuning seeds: the same
+    # weights, archived by eval.py --adopt): every row, the noise rows against the filtered
+    # rival, and the five seeds' noise rows at the same cutoff
+    lp = "results/studies/deploy_large_batch_continued_5m/lowpass"
+    chosen = [f"{a}deploy_large_batch_10m_lp10.zip", f"{a}deploy_large_batch_10m.zip"]
+    steps += [_deploy(chosen, f"{lp}1000", ("none", "delay1", "delay3", "camera1", "camera3",
+                                            "noise1", "noise2"), "0-999"),
+              _deploy(chosen, f"{lp}1000/vs_rival", ("noise1", "noise2"), "0-999"),
+              _deploy([f"{a}seeds/{cont}_s{k}.zip" for k in range(1, 6)], lp,
+                      ("noise1", "noise2"), "0-99", "--noisy-lead-filter-hz", "10")]
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
