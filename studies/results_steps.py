@@ -371,6 +371,9 @@ def table_steps() -> list[Step]:
               _deploy(chosen, f"{lp}1000/vs_rival", ("noise1", "noise2"), "0-999"),
               _deploy([f"{a}seeds/{cont}_s{k}.zip" for k in range(1, 6)], lp,
                       ("noise1", "noise2"), "0-99", "--noisy-lead-filter-hz", "10")]
+    # ... with the Panda's joint acceleration limits in the reward (w_limit), against its
+    # control: the same start, budget and world without the term
+    steps += _five_seeds("deploy_large_batch_limit_continued_5m", cont)
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
