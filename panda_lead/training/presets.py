@@ -336,6 +336,13 @@ PRESETS.update([
             "Panda's joint acceleration limits in the reward (w_limit 0.01) (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.01)},
             init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
+    # ... with ten times the weight: at 0.01 the term cost 0.067 cm [0.022, 0.114] and moved no
+    # borderline path under the limits (a step 20% over them cost a tenth of the step's
+    # distance term); is the term too weak, or the wrong lever?
+    _preset("deploy_large_batch_limit10_continued", "deploy_large_batch_continued with the "
+            "Panda's joint acceleration limits in the reward at w_limit 0.1 (25-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.1)},
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
