@@ -337,8 +337,10 @@ PRESETS.update([
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.01)},
             init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
     # ... with ten times the weight: at 0.01 the term cost 0.067 cm [0.022, 0.114] and moved no
-    # borderline path under the limits (a step 20% over them cost a tenth of the step's
-    # distance term); is the term too weak, or the wrong lever?
+    # borderline path under the limits; is the term too weak, or the wrong lever? The wrong
+    # lever: two runs, stopped at 1.86M steps, went from 2.5-2.7 to 6.4-7.2 cm on the
+    # evaluation set (the term is mostly noisy episodes' jitter the lead cannot remove:
+    # docs/deploy.md, "The arm's limits in the reward").
     _preset("deploy_large_batch_limit10_continued", "deploy_large_batch_continued with the "
             "Panda's joint acceleration limits in the reward at w_limit 0.1 (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.1)},
