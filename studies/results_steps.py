@@ -369,6 +369,8 @@ def table_steps() -> list[Step]:
     steps += [_deploy(chosen, f"{lp}1000", ("none", "delay1", "delay3", "camera1", "camera3",
                                             "noise1", "noise2"), "0-999"),
               _deploy(chosen, f"{lp}1000/vs_rival", ("noise1", "noise2"), "0-999"),
+              _deploy(chosen, f"{lp}1000/target_noise", ("targetnoise1", "targetnoise2"),
+                      "0-999"),
               _deploy([f"{a}seeds/{cont}_s{k}.zip" for k in range(1, 6)], lp,
                       ("noise1", "noise2"), "0-99", "--noisy-lead-filter-hz", "10")]
     # ... with the Panda's joint acceleration limits in the reward (w_limit), against its
