@@ -88,6 +88,10 @@ class Args:
     """Instead of the table: tune this model's lead low-pass under noise (EnvConfig.
     noisy_lead_filter_hz) on the tuning seeds at 1 cm of noise: each cutoff's mean error and
     jerk, and the rule's choice, the lowest jerk at no more error than without the filter."""
+    tune_on: int = 0
+    """With --tune-lead-filter: tune on the first N selection-set trajectories (seeds from
+    5,000,000: never trained, tuned or tested on) instead of the 50 tuning seeds; 0: the tuning
+    seeds. More trajectories make the rule's error criterion steadier."""
 
 
 def overrides(cond: str) -> dict:
@@ -176,7 +180,7 @@ def main(args: Args) -> None:
     if args.tune_lead_filter is not None:
         if not args.tune_lead_filter.is_file():
             raise UserError(f"no model file {args.tune_lead_filter}")
-        return tune_lead_filter(args.tune_lead_filter, steps)
+        return tune_lead_filter(args.tune_lead_filter, steps, args.tune_on)
     outputs = [args.out / "deploy.md", args.out / "deploy.png"]
     if any(p.exists() for p in outputs) and not args.force:
         raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
@@ -380,25 +384,29 @@ def choose_cutoff(found: dict[float, tuple[float, float]]) -> float:
 LEAD_FILTER_HZ = (0.0, 40.0, 30.0, 20.0, 15.0, 12.0, 10.0, 9.0, 8.0, 6.0, 5.0)
 
 
-def tune_lead_filter(model: Path, steps: int) -> float:
+def tune_lead_filter(model: Path, steps: int, on_selection: int = 0) -> float:
     """The model's lead low-pass under noise (noisy_lead_filter_hz), chosen on the tuning seeds
-    at 1 cm: of the cutoffs whose mean error is no higher than without the filter (0 Hz), the
-    one with the least jerk. Without noise the filter is off, so no other row can move."""
+    (or the first ``on_selection`` selection-set seeds) at 1 cm: of the cutoffs whose mean
+    error is no higher than without the filter (0 Hz), the one with the least jerk. Without
+    noise the filter is off, so no other row can move."""
     from panda_lead import harness
     from panda_lead.metrics.stats import rollout_metrics
-    from panda_lead.seeds import TUNE_SEEDS
+    from panda_lead.seeds import SELECT_SEEDS, TUNE_SEEDS
 
+    if not 0 <= on_selection <= len(SELECT_SEEDS):
+        raise UserError(f"--tune-on must be 0..{len(SELECT_SEEDS)}, got {on_selection}")
+    seeds = list(SELECT_SEEDS[:on_selection] if on_selection else TUNE_SEEDS)
     found = {}
     for hz in LEAD_FILTER_HZ:
         ctrl = harness.build("policy", steps, model, {**overrides("noise1"),
                                                       "noisy_lead_filter_hz": hz})
-        m = [rollout_metrics(r, SKIP_S) for r in _play(ctrl, list(TUNE_SEEDS)).values()]
+        m = [rollout_metrics(r, SKIP_S) for r in _play(ctrl, seeds).values()]
         found[hz] = (np.mean([x["mean_err"] for x in m]), np.mean([x["jerk_rms"] for x in m]))
         print(f"noisy_lead_filter_hz {hz:4.0f}: mean error {found[hz][0]:.3f} cm, jerk "
               f"{found[hz][1]:.0f} m/s^3", flush=True)
     best = choose_cutoff(found)
     print(f"chosen: {best:g} Hz (the least jerk at no more error than without the filter; "
-          f"tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]})")
+          f"{'selection' if on_selection else 'tuning'} seeds {seeds[0]}-{seeds[-1]})")
     return best
 
 

@@ -117,6 +117,20 @@ def test_deploy_refuses_an_unknown_condition(tmp_path, capsys):
     assert not (tmp_path / "deploy.md").exists()
 
 
+def test_lead_filter_tuning_refuses_a_missing_model_and_an_impossible_seed_count(
+        tiny_run, tmp_path, capsys):
+    deploy = _deploy_module()
+    tmp, _, _, _ = tiny_run
+    for args, words in ((deploy.Args(tune_lead_filter=tmp_path / "absent.zip"), "no model file"),
+                        (deploy.Args(tune_lead_filter=tmp / "archive" / "tiny.zip",
+                                     tune_on=10 ** 7), "--tune-on must be 0..2378")):
+        with pytest.raises(SystemExit) as exc:
+            deploy.main(args)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and words in err and err.count("\n") == 1, err
+
+
 def test_noise_condition_reaches_the_tip_error():
     """Under the study's 1 cm condition the tip error a learned lead observes is the tip
     reading minus the target reading: the difference of the ee_pos and target_pos features it
