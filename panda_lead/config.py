@@ -252,8 +252,8 @@ class EnvConfig:
     non-zero; under random_noise, the episodes not drawn noise-free); where the readings are
     exact the lead passes unfiltered, bit for bit. A gain scheduled on the installation's
     noise, as the tracker's Kalman gain is (target_filter): a noisy camera's lead is smoothed,
-    an exact one's is not delayed. Tuned per model on the tuning seeds (`studies/deploy.py
-    --tune-lead-filter`); not with lead_filter_hz. 0: none."""
+    an exact one's is not delayed. A trade under noise (precision for calm; `studies/deploy.py
+    --tune-lead-filter` prints a model's frontier); not with lead_filter_hz. 0: none."""
     preview_times: tuple[float, ...] = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
     """The `target_preview` observation's look-aheads (s; 6 increasing, in (0, 1]): it holds
     the target's future positions p(t + h) - p(t), what a controller that knows the planned
