@@ -89,9 +89,9 @@ class Args:
     noisy_lead_filter_hz) on the tuning seeds at 1 cm of noise: each cutoff's mean error and
     jerk, and the rule's choice, the lowest jerk at no more error than without the filter."""
     tune_on: int = 0
-    """With --tune-lead-filter: tune on the first N selection-set trajectories (seeds from
-    5,000,000: never trained, tuned or tested on) instead of the 50 tuning seeds; 0: the tuning
-    seeds. More trajectories make the rule's error criterion steadier."""
+    """With --tune-lead-filter or --tune-filter: tune on the first N selection-set trajectories
+    (seeds from 5,000,000: never trained, tuned or tested on) instead of the 50 tuning seeds;
+    0: the tuning seeds. More trajectories make the rule's error criterion steadier."""
 
 
 def overrides(cond: str) -> dict:
@@ -176,7 +176,7 @@ def main(args: Args) -> None:
     seeds = parse_seed_range(args.seeds)
     steps = int(round(args.duration / control_dt()))
     if args.tune_filter:
-        return tune_filter(steps)
+        return tune_filter(steps, args.tune_on)
     if args.tune_lead_filter is not None:
         if not args.tune_lead_filter.is_file():
             raise UserError(f"no model file {args.tune_lead_filter}")
@@ -360,19 +360,29 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     save_figure(fig, path)
 
 
-def tune_filter(steps: int) -> None:
-    """The filter's jerk density on the tuning seeds (never the test seeds), at 1 cm."""
+def tune_filter(steps: int, on_selection: int = 0) -> None:
+    """The filter's jerk density on the tuning seeds (never the test seeds), at 1 cm; or on the
+    first ``on_selection`` selection-set seeds, beside a lead low-pass tuned there."""
     from panda_lead import controllers, harness
     from panda_lead.metrics.stats import rollout_metrics
-    from panda_lead.seeds import TUNE_SEEDS
 
     analytic = harness.build("analytic", steps, None, overrides("noise1"))
+    seeds = _tuning_seeds(on_selection)
     for psd in (1e1, 1e2, 1e3, 1e4, 1e5):
         act = controllers.make_filtered_analytic(jerk_psd=psd)
-        rs = _play(harness.Controller("f", analytic.config, {}, act), list(TUNE_SEEDS))
+        rs = _play(harness.Controller("f", analytic.config, {}, act), seeds)
         m = [rollout_metrics(r, 0.5) for r in rs.values()]
         print(f"jerk_psd {psd:8.0e}: mean error {np.mean([x['mean_err'] for x in m]):.3f} cm, "
               f"jerk {np.mean([x['jerk_rms'] for x in m]):.0f} m/s^3", flush=True)
+
+
+def _tuning_seeds(on_selection: int) -> list[int]:
+    """The 50 tuning seeds, or the first ``on_selection`` of the selection set."""
+    from panda_lead.seeds import SELECT_SEEDS, TUNE_SEEDS
+
+    if not 0 <= on_selection <= len(SELECT_SEEDS):
+        raise UserError(f"--tune-on must be 0..{len(SELECT_SEEDS)}, got {on_selection}")
+    return list(SELECT_SEEDS[:on_selection] if on_selection else TUNE_SEEDS)
 
 
 def choose_cutoff(found: dict[float, tuple[float, float]]) -> float:
@@ -391,11 +401,8 @@ def tune_lead_filter(model: Path, steps: int, on_selection: int = 0) -> float:
     noise the filter is off, so no other row can move."""
     from panda_lead import harness
     from panda_lead.metrics.stats import rollout_metrics
-    from panda_lead.seeds import SELECT_SEEDS, TUNE_SEEDS
 
-    if not 0 <= on_selection <= len(SELECT_SEEDS):
-        raise UserError(f"--tune-on must be 0..{len(SELECT_SEEDS)}, got {on_selection}")
-    seeds = list(SELECT_SEEDS[:on_selection] if on_selection else TUNE_SEEDS)
+    seeds = _tuning_seeds(on_selection)
     found = {}
     for hz in LEAD_FILTER_HZ:
         ctrl = harness.build("policy", steps, model, {**overrides("noise1"),
