@@ -23,6 +23,7 @@ from .config import (
     obs_layout,
 )
 from .core import ArmBatch
+from .limits import JOINT_ACC
 from .seeds import TRAIN_SEED_HIGH, TRAIN_SEED_LOW
 from .trajectory import reachable
 
@@ -83,6 +84,8 @@ class LeadTask:
         self.target_delay = np.full(n, c.target_delay)  # the target camera's, per slot
         self.noise_scale = np.ones(n)  # each slot's episode's share of obs_noise (random_noise)
         self._goal_hist = np.zeros((n, 2, 7))  # the last two joint goals (w_limit's term)
+        self._no_limit = np.zeros(n)  # the limit term when w_limit is 0: made once, read-only
+        self._no_limit.flags.writeable = False
         # the installation feature: each slot's latencies and target noise (config.OBS_SCALE)
         self._installation = np.zeros((n, 4))
         self._installation_cols = next((slice(a, b) for f, a, b in self.layout
@@ -374,7 +377,7 @@ class LeadTask:
             "action": -w["action"] * np.einsum("ij,ij->i", action, action),
             "action_change": -w["action_change"] * np.einsum("ij,ij->i", da, da),
             "collision": -w["collision"] * core.collision_depth,
-            "limit": self._limit_term(core) if w["limit"] else np.zeros(self.n),
+            "limit": self._limit_term(core) if w["limit"] else self._no_limit,
             "alive": self._alive.copy(),
             "termination": np.where(terminated, -w["termination"], 0.0),
         }
@@ -395,8 +398,6 @@ class LeadTask:
         """-w_limit * the joint goals' clipped acceleration excess (EnvConfig.w_limit): the
         second difference of this step's goal and the two before (none before the third step
         of an episode, and none before LIMIT_FROM_S)."""
-        from .limits import JOINT_ACC
-
         goals, k = self._goal_hist, core.step_count
         acc = (core.q_goal - 2 * goals[:, 0] + goals[:, 1]) / self.dt ** 2
         goals[:, 1] = goals[:, 0]

@@ -190,8 +190,9 @@ def main(args: Args) -> None:
         sets = {name: _play(c, seeds) for name, c in ctrls.items()}
         checks = {name: accepted_by_arm(rs) for name, rs in sets.items()}
         rival = next((r for r in RIVALS if r in sets), None)
-        for name in list(sets)[len(sets) - len(args.models):] if rival and args.models else []:
-            rival_rows.append(_rival_row(cond, rival, name, sets, args.bootstrap))
+        models = list(sets)[len(sets) - len(args.models):]  # (controllers_for puts them last)
+        rival_rows += [_rival_row(cond, rival, name, sets, args.bootstrap)
+                       for name in (models if rival else [])]
         for name, rs in sets.items():
             rows.append(_row(cond, name, sets["Analytic"], rs, checks["Analytic"],
                              checks[name], args.bootstrap))
@@ -362,18 +363,23 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
 
 def tune_filter(steps: int, on_selection: int = 0) -> None:
     """The filter's jerk density on the tuning seeds (never the test seeds), at 1 cm; or on the
-    first ``on_selection`` selection-set seeds, beside a lead low-pass tuned there."""
+    first ``on_selection`` selection-set seeds."""
     from panda_lead import controllers, harness
-    from panda_lead.metrics.stats import rollout_metrics
 
     analytic = harness.build("analytic", steps, None, overrides("noise1"))
     seeds = _tuning_seeds(on_selection)
     for psd in (1e1, 1e2, 1e3, 1e4, 1e5):
         act = controllers.make_filtered_analytic(jerk_psd=psd)
-        rs = _play(harness.Controller("f", analytic.config, {}, act), seeds)
-        m = [rollout_metrics(r, 0.5) for r in rs.values()]
-        print(f"jerk_psd {psd:8.0e}: mean error {np.mean([x['mean_err'] for x in m]):.3f} cm, "
-              f"jerk {np.mean([x['jerk_rms'] for x in m]):.0f} m/s^3", flush=True)
+        err, jerk = _error_and_jerk(harness.Controller("f", analytic.config, {}, act), seeds)
+        print(f"jerk_psd {psd:8.0e}: mean error {err:.3f} cm, jerk {jerk:.0f} m/s^3", flush=True)
+
+
+def _error_and_jerk(ctrl, seeds: list[int]) -> tuple[float, float]:
+    """A controller's mean tracking error (cm) and tip jerk (m/s^3) on seeds, after the swing."""
+    from panda_lead.metrics.stats import rollout_metrics
+
+    m = [rollout_metrics(r, SKIP_S) for r in _play(ctrl, seeds).values()]
+    return float(np.mean([x["mean_err"] for x in m])), float(np.mean([x["jerk_rms"] for x in m]))
 
 
 def _tuning_seeds(on_selection: int) -> list[int]:
@@ -400,15 +406,13 @@ def tune_lead_filter(model: Path, steps: int, on_selection: int = 0) -> float:
     error is no higher than without the filter (0 Hz), the one with the least jerk. Without
     noise the filter is off, so no other row can move."""
     from panda_lead import harness
-    from panda_lead.metrics.stats import rollout_metrics
 
     seeds = _tuning_seeds(on_selection)
     found = {}
     for hz in LEAD_FILTER_HZ:
         ctrl = harness.build("policy", steps, model, {**overrides("noise1"),
                                                       "noisy_lead_filter_hz": hz})
-        m = [rollout_metrics(r, SKIP_S) for r in _play(ctrl, seeds).values()]
-        found[hz] = (np.mean([x["mean_err"] for x in m]), np.mean([x["jerk_rms"] for x in m]))
+        found[hz] = _error_and_jerk(ctrl, seeds)
         print(f"noisy_lead_filter_hz {hz:4.0f}: mean error {found[hz][0]:.3f} cm, jerk "
               f"{found[hz][1]:.0f} m/s^3", flush=True)
     best = choose_cutoff(found)

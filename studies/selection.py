@@ -83,11 +83,14 @@ def _knows_path_of(record: dict) -> bool:
 def _budget(record: dict) -> str:
     """The training steps behind a scored model, from its sidecar: "5M", or "5M + 5M" for a run
     started from another model's weights (train.py --init-from), whose steps are on top of
-    that model's ("?" where that model's sidecar is gone). Blank when the sidecar is not there."""
-    path = ROOT / Path(record["model"]).with_suffix(".json")
-    if not path.is_file():
+    that model's ("?" where that model's sidecar is gone). Blank when the sidecar is not there
+    or unreadable (models.read_sidecar: size-bounded JSON)."""
+    from panda_lead.models import ModelError, read_sidecar
+
+    try:
+        side = read_sidecar(ROOT / record["model"])
+    except ModelError:  # no sidecar beside it (or one that cannot be read): no budget shown
         return ""
-    side = json.loads(path.read_text())
     own = f"{int((side.get('train_config') or {}).get('timesteps', 0)) / 1e6:g}M"
     start = (side.get("init_from") or {}).get("path")
     return f"{_budget({'model': start}) or '?'} + {own}" if start else own

@@ -168,7 +168,7 @@ def test_the_rank_counts_a_warm_started_models_starting_steps(tmp_path, monkeypa
     (tmp_path / "archive").mkdir()
     for name, steps, start in (("start", 5_000_000, None), ("warm", 2_500_000, "archive/start.zip"),
                                ("lost", 1_000_000, "archive/gone.zip")):
-        side = {"train_config": {"timesteps": steps}}
+        side = {"train_config": {"timesteps": steps}, "env_config": {}}  # as a sidecar
         if start:
             side["init_from"] = {"path": start, "sha256": "0" * 64}
         (tmp_path / "archive" / f"{name}.json").write_text(json.dumps(side))
