@@ -131,6 +131,23 @@ def test_lead_filter_tuning_refuses_a_missing_model_and_an_impossible_seed_count
         assert err.startswith("error: ") and words in err and err.count("\n") == 1, err
 
 
+def test_the_probes_refuse_a_missing_model_and_an_unknown_condition(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location("deploy_probes",
+                                                  ROOT / "studies" / "deploy_probes.py")
+    probes = importlib.util.module_from_spec(spec)
+    sys.modules["deploy_probes"] = probes  # (its dataclass looks its module up)
+    spec.loader.exec_module(probes)
+    for args, words in ((probes.Args("margins", models=[tmp_path / "absent.zip"]),
+                         "no model file"),
+                        (probes.Args("margins", models=[], conditions=["delay2"]),
+                         "unknown condition 'delay2'")):
+        with pytest.raises(SystemExit) as exc:
+            probes.main(args)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and words in err and err.count("\n") == 1, err
+
+
 def test_noise_condition_reaches_the_tip_error():
     """Under the study's 1 cm condition the tip error a learned lead observes is the tip
     reading minus the target reading: the difference of the ee_pos and target_pos features it
