@@ -13,6 +13,7 @@ import numpy as np
 
 from . import kalman, trajectory
 from .config import (
+    LIMIT_FEASIBLE_ACC,
     LIMIT_FROM_S,
     OBS_SCALE,
     PATH_FEATURES,
@@ -86,6 +87,11 @@ class LeadTask:
         self._goal_hist = np.zeros((n, 2, 7))  # the last two joint goals (w_limit's term)
         self._no_limit = np.zeros(n)  # the limit term when w_limit is 0: made once, read-only
         self._no_limit.flags.writeable = False
+        # limit_lead_only: the zero lead's last two goals, and the slots whose path the term
+        # leaves out (set at each reset)
+        self._ref_hist = np.zeros((n, 2, 7)) if c.limit_lead_only else None
+        self._ref_goal = np.zeros((n, 7))
+        self._limit_off = np.ones(n, bool) if c.limit_lead_only else None
         # the installation feature: each slot's latencies and target noise (config.OBS_SCALE)
         self._installation = np.zeros((n, 4))
         self._installation_cols = next((slice(a, b) for f, a, b in self.layout
@@ -189,6 +195,8 @@ class LeadTask:
         core = self.core
         core.reset(ids, trajs, self.config.episode_steps)
         self._goal_hist[ids] = core.q_goal[ids, None]
+        if self._ref_hist is not None:
+            self._ref_hist[ids] = core.q_goal[ids, None]
         self._reachable[ids] = reachable(core.target_pos[ids])
         if self._preview_observed:
             self._set_preview(ids)
@@ -206,6 +214,8 @@ class LeadTask:
             self.noise_scale[nominal] = 0.0
         if self._lead_smoothed is not None:  # the lead's low-pass in the noisy episodes only
             self._lead_smoothed[ids] = self.noise_scale[ids] > 0
+        if self._limit_off is not None:  # a path no controller runs within the limits
+            self._limit_off[ids] = [self.trajs[i].peak_acc > LIMIT_FEASIBLE_ACC for i in ids]
         for reading_filter in self._filters:  # (the filter of each episode's noise level)
             reading_filter.restart(ids, self.noise_scale[ids])
         self._set_installation(ids)
@@ -397,13 +407,14 @@ class LeadTask:
     def _limit_term(self, core) -> np.ndarray:
         """-w_limit * the joint goals' clipped acceleration excess (EnvConfig.w_limit): the
         second difference of this step's goal and the two before (none before the third step
-        of an episode, and none before LIMIT_FROM_S)."""
-        goals, k = self._goal_hist, core.step_count
-        acc = (core.q_goal - 2 * goals[:, 0] + goals[:, 1]) / self.dt ** 2
-        goals[:, 1] = goals[:, 0]
-        goals[:, 0] = core.q_goal
-        excess = np.minimum(np.maximum(np.abs(acc) / JOINT_ACC - 1.0, 0.0), 1.0).sum(axis=1)
+        of an episode, and none before LIMIT_FROM_S); under limit_lead_only, minus the zero
+        lead's, on the paths a Panda could run."""
+        k = core.step_count
+        excess = _acceleration_excess(self._goal_hist, core.q_goal, self.dt)
         counts = (k >= 3) & (core.time >= LIMIT_FROM_S - 1e-9)
+        if self._ref_hist is not None:
+            excess -= _acceleration_excess(self._ref_hist, self._ref_goal, self.dt)
+            counts &= ~self._limit_off
         return np.where(counts, -self._w["limit"] * excess, 0.0)
 
     def _new_core(self, n: int, nthread: int) -> ArmBatch:
@@ -467,6 +478,9 @@ class LeadTask:
             if self._feedforward is not None:
                 core.step(*self._feedforward_step(self.lead))
             else:
+                if self._ref_hist is not None:  # limit_lead_only: the zero lead's goal first
+                    aim = core.target()[0] if shift is None else core.target()[0] + shift
+                    self._ref_goal = core.ik(aim)
                 core.step(self.lead if shift is None else self.lead + shift)
         elif kind == "joint":
             core.step(lead=shift, joint_offset=applied * self.config.max_joint_offset)
@@ -511,3 +525,12 @@ def _distance(d: np.ndarray) -> np.ndarray:
     Python floats give the same numbers by construction."""
     return np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
 
+
+def _acceleration_excess(history: np.ndarray, goal: np.ndarray, dt: float) -> np.ndarray:
+    """Per slot, the joints' summed acceleration excess of ``goal`` after the two goals in
+    ``history`` (newest first): |second difference| / limits.JOINT_ACC - 1, clipped to [0, 1]
+    per joint. Shifts ``goal`` into ``history``."""
+    acc = (goal - 2 * history[:, 0] + history[:, 1]) / dt ** 2
+    history[:, 1] = history[:, 0]
+    history[:, 0] = goal
+    return np.minimum(np.maximum(np.abs(acc) / JOINT_ACC - 1.0, 0.0), 1.0).sum(axis=1)

@@ -92,6 +92,10 @@ class Args:
     """With --tune-lead-filter or --tune-filter: tune on the first N selection-set trajectories
     (seeds from 5,000,000: never trained, tuned or tested on) instead of the 50 tuning seeds;
     0: the tuning seeds. More trajectories make the rule's error criterion steadier."""
+    check_from: list[float] = field(default_factory=list)
+    """Also check the arm's limits from these later times (s, each > 0.5 and < the episode):
+    a third table, the share accepted by when the check starts, to see how much of a
+    difference lies in the end of the swing from home rather than in the tracking."""
 
 
 def overrides(cond: str) -> dict:
@@ -141,8 +145,9 @@ def controllers_for(cond: str, models: list[Path], steps: int,
     return out
 
 
-def accepted_by_arm(rollouts: dict) -> dict[int, object]:
-    """seed -> limits.Check; an episode that failed (ended early) is not accepted."""
+def accepted_by_arm(rollouts: dict, skip: float = SKIP_S) -> dict[int, object]:
+    """seed -> limits.Check from ``skip`` seconds on; an episode that failed (ended early) is
+    not accepted."""
     from panda_lead.core import home_qpos
     from panda_lead.limits import Check, check_many
 
@@ -157,7 +162,7 @@ def accepted_by_arm(rollouts: dict) -> dict[int, object]:
         for start in range(0, len(seeds), 64):
             chunk = seeds[start:start + 64]
             q = np.stack([full[s].q_goal for s in chunk])
-            for s, c in zip(chunk, check_many(q, full[chunk[0]].dt, home, skip=SKIP_S),
+            for s, c in zip(chunk, check_many(q, full[chunk[0]].dt, home, skip=skip),
                             strict=True):
                 out[s] = c
     return out
@@ -170,6 +175,10 @@ def main(args: Args) -> None:
 
     for c in args.conditions:
         overrides(c)
+    for t in args.check_from:
+        if not SKIP_S < t < args.duration:
+            raise UserError(f"--check-from {t:g}: must lie after {SKIP_S:g} s and before the "
+                            f"episode's end ({args.duration:g} s)")
     for m in args.models:
         if not m.is_file():
             raise UserError(f"no model file {m}")
@@ -184,7 +193,7 @@ def main(args: Args) -> None:
     outputs = [args.out / "deploy.md", args.out / "deploy.png"]
     if any(p.exists() for p in outputs) and not args.force:
         raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
-    rows, rival_rows, t0 = [], [], time.perf_counter()
+    rows, rival_rows, window_rows, t0 = [], [], [], time.perf_counter()
     for cond in args.conditions:
         ctrls = controllers_for(cond, args.models, steps, args.noisy_lead_filter_hz)
         sets = {name: _play(c, seeds) for name, c in ctrls.items()}
@@ -200,10 +209,13 @@ def main(args: Args) -> None:
             print(f"{cond:7s} {name:28s} error {r['err'].mean_b:5.2f} cm, jerk "
                   f"{r['jerk'].mean_b:7.1f}, accepted {100 * r['share']:3.0f}% "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        window_rows += [_window_row(cond, name, sets, t, args.bootstrap)
+                        for name in sets for t in ([SKIP_S, *args.check_from]
+                                                   if args.check_from else [])]
         del sets
     from panda_lead.atomicio import atomic_write
 
-    text = table(args, rows, seeds) + rival_table(rival_rows)
+    text = table(args, rows, seeds) + rival_table(rival_rows) + window_table(window_rows)
     args.out.mkdir(parents=True, exist_ok=True)
     with atomic_write(outputs[0], ".tmp.md") as tmp:
         Path(tmp).write_text(text)
@@ -243,6 +255,40 @@ def _row(cond: str, name: str, analytic: dict, rollouts: dict, checks_a: dict, c
             "charged": len(cmp.pairing.charged[name])}
 
 
+def _window_row(cond: str, name: str, sets: dict, start: float, n_boot: int) -> dict:
+    """The share accepted when the check starts at ``start`` s, against the analytic lead's
+    share from the same start, paired by seed (McNemar's exact test, as the main table)."""
+    from panda_lead.metrics import bootstrap_ci, sign_test_p
+
+    seeds = sorted(sets["Analytic"])
+    checks, checks_a = accepted_by_arm(sets[name], start), accepted_by_arm(sets["Analytic"], start)
+    ok = np.array([float(checks[s].accepted) for s in seeds])
+    delta = ok - np.array([float(checks_a[s].accepted) for s in seeds])
+    return {"cond": cond, "name": name, "start": start, "share": float(ok.mean()),
+            "delta": float(delta.mean()), "delta_ci": bootstrap_ci(delta, n_boot=n_boot),
+            "p": sign_test_p(delta), "n": len(seeds)}
+
+
+def window_table(rows: list[dict]) -> str:
+    """The accepted shares by when the check starts (--check-from)."""
+    from panda_lead.metrics import diff_text
+
+    if not rows:
+        return ""
+    lines = ["", "Accepted by when the check starts (the main table's is "
+             f"{SKIP_S:g} s; later starts leave more of the swing from home out; each share "
+             "against the analytic lead's from the same start, paired, McNemar's exact test):",
+             "", "| condition | controller | check from (s) | accepted | vs analytic |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        vs = "-" if r["name"] == "Analytic" else diff_text(
+            100 * r["delta"], tuple(100 * np.asarray(r["delta_ci"])), ".1f", n_pairs=r["n"],
+            p_holm=r["p"])
+        lines.append(f"| {LABELS[r['cond']]} | {r['name']} | {r['start']:g} | "
+                     f"{100 * r['share']:.1f}% | {vs} |")
+    return "\n".join(lines) + "\n"
+
+
 RIVALS = ("Analytic+filter", "Analytic+predict")  # the rival each condition calls for
 
 
@@ -280,6 +326,8 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
         f" --conditions {' '.join(args.conditions)}"
     if args.noisy_lead_filter_hz is not None:
         extra += f" --noisy-lead-filter-hz {args.noisy_lead_filter_hz:g}"
+    if args.check_from:
+        extra += f" --check-from {' '.join(f'{t:g}' for t in args.check_from)}"
     lines = [f"`uv run studies/deploy.py{models} --seeds {args.seeds}{extra}` "
              f"({len(seeds)} test seeds, {time.strftime('%Y-%m-%d')}, commit {_commit()}).",
              "",

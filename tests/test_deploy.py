@@ -619,6 +619,64 @@ def test_the_limit_term_charges_the_joint_goals_clipped_acceleration_excess():
     assert charged > 10  # random leads break the limits: the term is exercised
 
 
+def test_the_limit_term_can_charge_only_what_the_lead_changes_on_paths_a_panda_could_run():
+    """limit_lead_only: zero for a zero lead even where the IK chasing a noisy target breaks the
+    limits (the plain term charges it there), zero on a path faster than LIMIT_FEASIBLE_ACC,
+    and for a lead on a slow path the goals' excess minus the zero lead's (the zero lead's
+    goals from the IK at the same angles and aim, solved here by hand); the single env agrees
+    with the batched one (without noise: the two draw it from other streams); refused without
+    w_limit."""
+    from panda_lead import trajectory
+    from panda_lead.config import LIMIT_FEASIBLE_ACC, LIMIT_FROM_S
+    from panda_lead.core import control_dt
+    from panda_lead.env import PandaLeadEnv
+    from panda_lead.limits import JOINT_ACC
+
+    seeds = range(800_000, 800_050)
+    slow = next(s for s in seeds if trajectory.sample(s).peak_acc < 0.5 * LIMIT_FEASIBLE_ACC)
+    fast = next(s for s in seeds if trajectory.sample(s).peak_acc > 2 * LIMIT_FEASIBLE_ACC)
+    steps, w = 80, 0.05
+    rng = np.random.default_rng(2)
+    leads = rng.uniform(-1, 1, (steps, 2, 3)).astype(np.float32)
+
+    def run(actions, **settings) -> tuple[np.ndarray, float, list]:
+        task = LeadTask(EnvConfig(episode_steps=steps, w_limit=w, **settings), 2, nthread=1)
+        single = PandaLeadEnv(episode_steps=steps, w_limit=w, **settings)
+        task.reset(None, [slow, fast])
+        single.reset(options={"traj_seed": slow})
+        total, one, per_step = np.zeros(2), 0.0, [(None, task.core.q_goal[0].copy(), 0.0, 0.0)]
+        for a in actions:
+            zero_lead = task.core.ik(task.core.target()[0])  # (exact sensors: the aim point)
+            terms = task.step(a)[4]["reward_terms"]
+            per_step.append((zero_lead[0], task.core.q_goal[0].copy(), terms["limit"][0],
+                             task.core.time[0]))
+            total += terms["limit"]
+            one += single.step(a[0])[4]["reward_terms"]["limit"]
+        if "obs_noise" not in settings:
+            assert one == pytest.approx(total[0], abs=1e-9)
+        return total, per_step
+
+    noise = {"obs_noise": {"target_pos": 0.01}, "noisy_ik_target": True}
+    zeros = np.zeros((steps, 2, 3), np.float32)
+    assert (run(zeros, **noise)[0] < 0).all()  # the plain term: the noisy aim's jitter
+    assert run(zeros, limit_lead_only=True, **noise)[0].tolist() == [0.0, 0.0]
+    plain = run(leads)[0]
+    gated, per_step = run(leads, limit_lead_only=True)
+    assert plain[1] < 0 and gated[1] == 0.0  # the fast path: left out
+    assert gated[0] != 0.0
+    start = per_step[0][1]  # the reset's goal: both histories start there
+    refs, goals = [start, start], [start, start]
+    for zero_lead, goal, charged, t in per_step[1:]:
+        refs.append(zero_lead)
+        goals.append(goal)
+        excess = [np.clip(np.abs(h[-1] - 2 * h[-2] + h[-3]) / control_dt() ** 2 / JOINT_ACC
+                          - 1, 0, 1).sum() for h in (goals, refs)]
+        want = -w * (excess[0] - excess[1]) if t >= LIMIT_FROM_S - 1e-9 else 0.0
+        assert charged == pytest.approx(want, abs=1e-9)
+    with pytest.raises(UserError, match="limit_lead_only"):
+        EnvConfig(limit_lead_only=True)
+
+
 def test_deploy_compares_each_model_with_the_rival_its_condition_calls_for(tiny_run, tmp_path):
     """The second table: a model minus the filtered analytic lead under noise and minus the
     predicting one under latency (none without delay or noise), with the command's flags."""

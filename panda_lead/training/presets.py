@@ -345,6 +345,21 @@ PRESETS.update([
             "Panda's joint acceleration limits in the reward at w_limit 0.1 (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.1)},
             init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
+    # ... charged only for what the lead changes (the excess over a zero lead's goals, which
+    # cancels the noisy aim's jitter) and only on paths a Panda could run at all (peak
+    # acceleration <= 10 m/s^2; none faster was accepted), exploring 1.2 cm around the trained
+    # lead instead of the reset's 5.5 cm (log_std_init -2.5): the limit term's two flaws as
+    # measured (docs/deploy.md). Its control is the next preset: the same start and noise.
+    _preset("deploy_large_batch_limit_lead_continued", "deploy_large_batch_continued with the "
+            "limit term on what the lead adds, on paths a Panda could run (w_limit 0.2, "
+            "limit_lead_only), exploring 1.2 cm (log_std_init -2.5) (25-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.2,
+                                                 limit_lead_only=True)},
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", log_std_init=-2.5),
+    _preset("deploy_large_batch_lowstd_continued", "deploy_large_batch_continued exploring "
+            "1.2 cm around the trained lead (log_std_init -2.5): the control of "
+            "deploy_large_batch_limit_lead_continued (25-D)", **DEPLOY_LARGE_BATCH,
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", log_std_init=-2.5),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
