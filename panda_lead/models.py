@@ -206,6 +206,9 @@ def check_policy_spec(spec, where: str) -> dict:
     if isinstance(log_std, bool) or not isinstance(log_std, int | float) or not math.isfinite(
             log_std) or abs(log_std) > 20:
         raise ModelError(f"{where}: policy log_std_init must be a finite number, got {log_std!r}")
+    if not isinstance(spec.get("use_sde", False), bool):
+        raise ModelError(f"{where}: policy use_sde must be true or false, got "
+                         f"{spec.get('use_sde')!r}")
     return spec
 
 
@@ -233,9 +236,12 @@ def policy_spec(model) -> dict:
     kw = model.policy_kwargs
     act = kw.get("activation_fn", torch.nn.Tanh)
     arch = kw.get("net_arch", [64, 64])
-    return {"net_arch": dict(arch) if isinstance(arch, dict) else list(arch),
+    spec = {"net_arch": dict(arch) if isinstance(arch, dict) else list(arch),
             "activation_fn": act.__name__.lower(),
             "log_std_init": float(kw.get("log_std_init", 0.0))}
+    if getattr(model, "use_sde", False):  # (recorded only when on: older sidecars stay valid)
+        spec["use_sde"] = True
+    return spec
 
 
 def write_pair(path: Path, write_zip, sidecar: dict) -> dict:
@@ -474,7 +480,8 @@ def policy_kwargs_of(side: dict) -> dict:
     act = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[spec["activation_fn"]]
     arch = spec["net_arch"]
     return {"net_arch": dict(arch) if isinstance(arch, dict) else list(arch),
-            "activation_fn": act, "log_std_init": float(spec["log_std_init"])}
+            "activation_fn": act, "log_std_init": float(spec["log_std_init"]),
+            "use_sde": spec.get("use_sde", False)}
 
 
 def spaces_for(env_config: EnvConfig):

@@ -1,6 +1,7 @@
 """The probes behind docs/deploy.md's explanations (tuning seeds only, never the test seeds):
 what a low-pass does to the filtered rival, where the arm's limits bind on the paths near them,
-and how much of the limit term a lead could change.
+how much of the limit term a lead could change, and how much of it a PPO policy's exploration
+makes.
 
     uv run studies/deploy_probes.py rival-lowpass      # the rival with a low-pass on its lead
     uv run studies/deploy_probes.py margins --models \\
@@ -8,6 +9,7 @@ and how much of the limit term a lead could change.
         archive/seeds/deploy_large_batch_limit_continued_5m_s3.zip
     uv run studies/deploy_probes.py margins --conditions none delay1 --lead-filter-hz 0 40 25 15
     uv run studies/deploy_probes.py limit-excess   # the limit term's excess per 2 s episode
+    uv run studies/deploy_probes.py limit-exploration  # limit_lead_only's term, with exploration
 
 Each prints a few lines; about a minute each on the 2-core AMD EPYC.
 """
@@ -30,11 +32,13 @@ from panda_lead.errors import UserError, exit_on_user_error
 
 @dataclass
 class Args:
-    probe: tyro.conf.Positional[Literal["rival-lowpass", "margins", "limit-excess"]]
+    probe: tyro.conf.Positional[Literal["rival-lowpass", "margins", "limit-excess",
+                                        "limit-exploration"]]
     """Which probe to run."""
     models: list[Path] = field(
         default_factory=lambda: [Path("archive/deploy_large_batch_10m.zip")])
-    """margins: the models beside the analytic leads; limit-excess: the first is played."""
+    """margins: the models beside the analytic leads; limit-excess, limit-exploration: the first
+    is played."""
     conditions: list[str] = field(default_factory=lambda: ["delay1"])
     """margins: the conditions (studies/deploy.py's names)."""
     lead_filter_hz: list[float] = field(default_factory=lambda: [0.0])
@@ -96,6 +100,49 @@ def limit_excess(args: Args, seeds: list[int]) -> None:
               flush=True)
 
 
+def limit_exploration(args: Args, seeds: list[int]) -> None:
+    """limit_lead_only's term (w_limit 0.2, as deploy_large_batch_limit_lead_continued) summed
+    over a 2 s episode of the nominal world on the paths it charges, for the first model's
+    deterministic lead and with PPO's exploration added: a Gaussian of the given std (share of
+    the lead's bound) drawn afresh each step, as the policy's std in training, or gSDE's
+    (TrainConfig.use_sde): the policy's last hidden layer times a matrix drawn once per
+    episode, its entries' std exp(log_std_init) (-3.7: ~0.08 of the bound here)."""
+    import torch
+
+    from panda_lead import trajectory
+    from panda_lead.config import LIMIT_FEASIBLE_ACC, EnvConfig
+    from panda_lead.models import load_policy
+    from panda_lead.task import LeadTask
+
+    policy, env, _ = load_policy(args.models[0])
+    config = EnvConfig.from_dict(env).replace(
+        w_limit=0.2, limit_lead_only=True, episode_steps=200, random_delay=False,
+        random_noise=False, nominal_share=0.0, obs_delay=0, action_delay=0, target_delay=0,
+        obs_noise={})
+    paths = [s for s in seeds if trajectory.sample(s).peak_acc <= LIMIT_FEASIBLE_ACC]
+    for kind, size in (("none", 0.0), ("white", 0.02), ("white", 0.082), ("gsde", -3.7)):
+        task, rng = LeadTask(config, len(paths), nthread=2), np.random.default_rng(0)
+        obs, limit, distance, stds = task.reset(None, paths), 0.0, 0.0, []
+        matrix = np.exp(size) * rng.standard_normal((len(paths), 64, 3))
+        for _ in range(config.episode_steps):
+            action = policy.predict(obs, deterministic=True)[0]
+            if kind == "white":
+                action = action + size * rng.standard_normal(action.shape)
+            elif kind == "gsde":
+                with torch.no_grad():
+                    latent = policy.mlp_extractor.forward_actor(torch.as_tensor(obs)).numpy()
+                action = action + np.einsum("nj,njk->nk", latent, matrix)
+                stds.append(np.exp(size) * np.linalg.norm(latent, axis=1))
+            obs, _, _, _, info = task.step(np.clip(action, -1, 1).astype(np.float32))
+            limit += info["reward_terms"]["limit"].mean()
+            distance += info["reward_terms"]["distance"].mean()
+        label = ("none (the deterministic lead)" if kind == "none" else
+                 f"white, std {size:g} of the bound" if kind == "white" else
+                 f"gSDE, log_std_init {size:g} (std {np.median(stds):.3f} of the bound)")
+        print(f"exploration {label}: limit term {limit:.2f}, distance term {distance:.2f} per "
+              f"episode ({len(paths)} paths)", flush=True)
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     from panda_lead.core import control_dt
@@ -111,8 +158,10 @@ def main(args: Args) -> None:
         rival_lowpass(steps, list(TUNE_SEEDS))
     elif args.probe == "margins":
         margins(args, steps, list(TUNE_SEEDS))
-    else:
+    elif args.probe == "limit-excess":
         limit_excess(args, list(TUNE_SEEDS)[:30])
+    else:
+        limit_exploration(args, list(TUNE_SEEDS))
 
 
 if __name__ == "__main__":

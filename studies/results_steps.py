@@ -372,7 +372,10 @@ def table_steps() -> list[Step]:
               _deploy(chosen, f"{lp}1000/target_noise", ("targetnoise1", "targetnoise2"),
                       "0-999"),
               _deploy([f"{a}seeds/{cont}_s{k}.zip" for k in range(1, 6)], lp,
-                      ("noise1", "noise2"), "0-99", "--noisy-lead-filter-hz", "10")]
+                      ("noise1", "noise2"), "0-99", "--noisy-lead-filter-hz", "10"),
+              # where its acceptance gap under latency lies: by when the arm's check starts
+              _deploy(chosen[:1], f"{lp}1000/check_window", ("none", "delay1", "delay3"),
+                      "0-999", "--check-from", "0.75", "1", "1.5", "2")]
     # ... with the Panda's joint acceleration limits in the reward (w_limit), against its
     # control: the same start, budget and world without the term
     steps += _five_seeds("deploy_large_batch_limit_continued_5m", cont)

@@ -677,6 +677,37 @@ def test_the_limit_term_can_charge_only_what_the_lead_changes_on_paths_a_panda_c
         EnvConfig(limit_lead_only=True)
 
 
+def test_deploy_checks_the_limits_from_later_starts_too(tiny_run, tmp_path, capsys):
+    """--check-from: a third table, each controller's share accepted from 0.5 s (the main
+    table's) and from each later start; a later start checks a part of the same command, so
+    no share falls; a start outside the episode is one line and exit 2, nothing written."""
+    deploy = _deploy_module()
+    tmp, _, _, _ = tiny_run
+    args = deploy.Args(models=[tmp / "archive" / "tiny.zip"], seeds="0-3", conditions=["none"],
+                       out=tmp_path, bootstrap=100, duration=1.0, check_from=[0.7, 0.9])
+    deploy.main(args)
+    text = (tmp_path / "deploy.md").read_text()
+    assert "--check-from 0.7 0.9`" in text.splitlines()[0]
+    main, window = text.split("Accepted by when the check starts")
+    main_share = {line.split(" | ")[1]: line.split(" | ")[9] for line in main.splitlines()
+                  if line.startswith("| no delay")}
+    shares: dict[str, list[float]] = {}
+    for line in window.splitlines():
+        if line.startswith("| no delay"):
+            cells = line.split(" | ")
+            shares.setdefault(cells[1], []).append(float(cells[3].rstrip("%")))
+            if cells[2] == "0.5":
+                assert main_share[cells[1]].startswith(cells[3])
+    assert set(shares) == {"Classical", "Analytic", "tiny"}
+    assert all(len(v) == 3 and v == sorted(v) for v in shares.values())
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        deploy.main(deploy.Args(check_from=[1.5], duration=1.0, out=tmp_path / "bad"))
+    assert exc.value.code == 2
+    assert "--check-from 1.5" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_deploy_compares_each_model_with_the_rival_its_condition_calls_for(tiny_run, tmp_path):
     """The second table: a model minus the filtered analytic lead under noise and minus the
     predicting one under latency (none without delay or noise), with the command's flags."""

@@ -102,6 +102,48 @@ def test_one_update_matches_sb3_bit_for_bit():
     assert np.array_equal(rng_ref, rng_fast)  # the same minibatch draws, no more, no fewer
 
 
+def test_one_gsde_update_matches_sb3_bit_for_bit():
+    """With gSDE exploration (--use-sde) the fast path stays SB3's update: its log-probability
+    and entropy come from SB3's own state-dependent distribution."""
+    model, vec = _collected(use_sde=True, log_std_init=-2.0)
+    try:
+        assert model.use_sde and model._fast_path_applies()
+        before, (p_ref, m_ref, log_ref, _), (p_fast, m_fast, log_fast, _) = _compare(model)
+    finally:
+        vec.close()
+    assert not torch.equal(before["log_std"], p_ref["log_std"])
+    assert p_ref["log_std"].shape == (64, 3)  # gSDE's matrix: hidden units x actions
+    for k in p_ref:
+        assert torch.equal(p_ref[k], p_fast[k]), k
+    for (a1, b1), (a2, b2) in zip(m_ref, m_fast, strict=True):
+        assert torch.equal(a1, a2) and torch.equal(b1, b2)
+    assert log_ref == log_fast
+
+
+def test_a_gsde_run_saves_a_model_that_loads_and_acts_as_trained(tmp_path):
+    """The sidecar records use_sde; models.load_policy rebuilds the gSDE policy from it and
+    its deterministic action is the trained policy's mean."""
+    from panda_lead.cli.train import parse_args
+    from panda_lead.models import load_policy, read_sidecar
+    from panda_lead.training import train
+
+    args = parse_args(["--timesteps", "256", "--eval-freq", "0", "--n-envs", "2", "--n-steps",
+                       "64", "--batch-size", "64", "--n-epochs", "1", "--n-workers", "1",
+                       "--no-progress", "--seed", "5", "--use-sde", "--sde-sample-freq", "8",
+                       "--runs-dir", str(tmp_path)])
+    run_dir = train(args)
+    model = run_dir / "final_model.zip"
+    assert read_sidecar(model)["policy"]["use_sde"] is True
+    policy, _, _ = load_policy(model)
+    assert policy.use_sde and policy.log_std.shape == (64, 3)
+    obs = np.random.default_rng(0).normal(size=(5, policy.observation_space.shape[0]))
+    act = policy.predict(obs.astype(np.float32), deterministic=True)[0]
+    with torch.no_grad():
+        mean = policy.action_net(policy.mlp_extractor.forward_actor(
+            torch.as_tensor(obs, dtype=torch.float32)))
+    assert np.allclose(act, np.clip(mean.numpy(), -1, 1))
+
+
 def test_kl_early_stop_matches_sb3():
     """With a tiny target_kl both stop at the same minibatch: the same weights, the same
     number of epochs counted."""

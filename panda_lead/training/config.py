@@ -87,6 +87,16 @@ class TrainConfig:
     """Standard deviation of the spatial term's observation noise, in observation units (each
     feature divided by its config.OBS_SCALE: 0.05 is 5 cm on a position, 2.5 mm on the tip
     error, 0.125 m/s on a velocity)."""
+    use_sde: bool = False
+    """Explore with SB3's generalized state-dependent exploration (gSDE) instead of a fresh
+    Gaussian draw per step: the noise is the policy's last hidden layer times a random matrix,
+    drawn every --sde-sample-freq steps, so it varies as smoothly as the state does. White
+    per-step noise shakes the 100 Hz joint goals far over the Panda's acceleration limits
+    whatever the policy's mean does (docs/deploy.md, "The arm's limits in the reward");
+    --log-std-init then scales the matrix's entries (the action's std is about their std x
+    the norm of the hidden layer)."""
+    sde_sample_freq: int = -1
+    """With --use-sde: draw a new noise matrix every this many steps (-1: once per rollout)."""
     eval_freq: int = 50_000
     """Evaluate on the fixed evaluation set every this many total steps (0: never)."""
     eval_steps: int = 500
@@ -133,6 +143,10 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= high:
                 raise UserError(f"--{flag(name)} must be an integer in 0..{high:,}, got {v!r}")
+        if isinstance(self.sde_sample_freq, bool) or not isinstance(self.sde_sample_freq, int) \
+                or self.sde_sample_freq < -1:
+            raise UserError(f"--sde-sample-freq must be -1 or a step count >= 0, got "
+                            f"{self.sde_sample_freq!r}")
         if self.n_steps * self.n_envs < 2:
             raise UserError("a PPO rollout needs at least 2 steps: raise --n-steps or --n-envs")
         for name, lo, hi, lo_open in (("gamma", 0, 1, True), ("gae_lambda", 0, 1, False),

@@ -49,7 +49,10 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
-from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.distributions import (
+    DiagGaussianDistribution,
+    StateDependentNoiseDistribution,
+)
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.torch_layers import FlattenExtractor, MlpExtractor
@@ -132,9 +135,9 @@ class FastPPO(PPO):
         return (isinstance(self.action_space, spaces.Box)
                 and isinstance(self.observation_space, spaces.Box)
                 and type(self.rollout_buffer) is RolloutBuffer
-                and isinstance(p.action_dist, DiagGaussianDistribution)
-                and not p.use_sde and p.share_features_extractor
-                and self.clip_range_vf is None)
+                and isinstance(p.action_dist, DiagGaussianDistribution
+                               | StateDependentNoiseDistribution)
+                and p.share_features_extractor and self.clip_range_vf is None)
 
     def _evaluate_actions(self, obs: th.Tensor, actions: th.Tensor, with_mean: bool = False):
         """SB3's ActorCriticPolicy.evaluate_actions for a diagonal Gaussian, operation for
@@ -144,6 +147,12 @@ class FastPPO(PPO):
         p = self.policy
         latent_pi, latent_vf = p.mlp_extractor(self._features(obs))
         mean_actions = p.action_net(latent_pi)
+        if p.use_sde:  # gSDE: SB3's own distribution (its variance depends on latent_pi)
+            dist = p.action_dist.proba_distribution(mean_actions, p.log_std, latent_pi)
+            log_prob = dist.log_prob(actions)
+            values, entropy = p.value_net(latent_vf), dist.entropy()
+            return (values, log_prob, entropy, mean_actions) if with_mean else (
+                values, log_prob, entropy)
         scale = th.ones_like(mean_actions) * p.log_std.exp()
         var = scale**2
         log_prob = (-((actions - mean_actions) ** 2) / (2 * var) - scale.log()
@@ -334,6 +343,8 @@ def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None 
                                            "target_kl")}
     if config.lr_schedule == "linear":
         ppo["learning_rate"] = linear_schedule(config.learning_rate)
+    ppo.update(use_sde=getattr(config, "use_sde", False),
+               sde_sample_freq=getattr(config, "sde_sample_freq", -1))
     policy_kwargs = dict(net_arch=list(config.net_arch), activation_fn=th.nn.Tanh,
                          log_std_init=config.log_std_init)
     if fast:

@@ -360,6 +360,22 @@ PRESETS.update([
             "1.2 cm around the trained lead (log_std_init -2.5): the control of "
             "deploy_large_batch_limit_lead_continued (25-D)", **DEPLOY_LARGE_BATCH,
             init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", log_std_init=-2.5),
+    # ... the same term explored with gSDE (TrainConfig.use_sde): white per-step noise of even
+    # 0.3 cm charged -137 to -144 per feasible episode against the deterministic lead's -1.2,
+    # and the pilot above only grew worse; gSDE's noise at the same std (0.08 of the bound:
+    # log_std_init -3.7 on these hidden layers) charges -1.2 (studies/deploy_probes.py
+    # limit-exploration). Its control is the next preset: gSDE, no term.
+    _preset("deploy_large_batch_limit_lead_sde_continued", "deploy_large_batch_continued with "
+            "the limit term on what the lead adds (w_limit 0.3, limit_lead_only), exploring "
+            "with gSDE at ~1.2 cm (25-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.3,
+                                                 limit_lead_only=True)},
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
+            log_std_init=-3.7),
+    _preset("deploy_large_batch_sde_continued", "deploy_large_batch_continued exploring with "
+            "gSDE at ~1.2 cm: the control of deploy_large_batch_limit_lead_sde_continued (25-D)",
+            **DEPLOY_LARGE_BATCH, init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip",
+            use_sde=True, log_std_init=-3.7),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
