@@ -25,8 +25,8 @@ The conditions (docs/deploy.md says what each means physically):
   10 s per second, the target's acceleration 100 s per second squared; the tip error a learned
   lead observes is the tip reading minus the target reading, noise and all (sqrt(2) s, the
   same draws as its ee_pos and target_pos), and the IK aims at the target reading.
-- target noise s cm (targetnoise1, targetnoise2; not in the default rows): the same noise on
-  the target's readings only, the arm's state exact: a camera sees the target while the tip
+- target noise s cm (targetnoise1, targetnoise2, targetnoise0.1; not in the default rows): the
+  same noise on the target's readings only, the arm's state exact: a camera sees the target while the tip
   comes from the joint encoders through the kinematics, as on a real Panda. It separates the
   jerk that the target's noise causes from the jerk that a noisy tip reading causes.
 The rivals a good engineer would field: under noise the analytic lead with a Kalman filter on
@@ -51,13 +51,14 @@ from robustness import condition as robustness_condition  # noqa: E402
 from panda_lead.errors import UserError, exit_on_user_error  # noqa: E402
 
 CONDITIONS = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2",
-              "targetnoise1", "targetnoise2")
+              "targetnoise1", "targetnoise2", "targetnoise0.1")
 DEFAULT_CONDITIONS = CONDITIONS[:7]
 LABELS = {"none": "no delay, no noise", "delay1": "latency 1 step (10 ms)",
           "delay3": "latency 3 steps (30 ms)", "camera1": "target camera 1 step (10 ms)",
           "camera3": "target camera 3 steps (30 ms)", "noise1": "noise 1 cm",
           "noise2": "noise 2 cm", "targetnoise1": "target noise 1 cm (arm exact)",
-          "targetnoise2": "target noise 2 cm (arm exact)"}
+          "targetnoise2": "target noise 2 cm (arm exact)",
+          "targetnoise0.1": "target noise 1 mm (arm exact)"}
 SKIP_S = 0.5  # the swing from home, as the settled error leaves it out
 
 
@@ -69,7 +70,7 @@ class Args:
     """Test seeds."""
     conditions: list[str] = field(default_factory=lambda: list(DEFAULT_CONDITIONS))
     """Rows, from: none delay1 delay3 camera1 camera3 noise1 noise2 targetnoise1
-    targetnoise2."""
+    targetnoise2 targetnoise0.1."""
     out: Path = Path("results/studies/deploy")
     """Folder for deploy.md and deploy.png."""
     bootstrap: int = 10000

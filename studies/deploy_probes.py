@@ -10,6 +10,7 @@ makes.
     uv run studies/deploy_probes.py margins --conditions none delay1 --lead-filter-hz 0 40 25 15
     uv run studies/deploy_probes.py limit-excess   # the limit term's excess per 2 s episode
     uv run studies/deploy_probes.py limit-exploration  # limit_lead_only's term, with exploration
+    uv run studies/deploy_probes.py lead-excess  # what a lead adds to a zero lead's, by condition
 
 Each prints a few lines; about a minute each on the 2-core AMD EPYC.
 """
@@ -33,12 +34,12 @@ from panda_lead.errors import UserError, exit_on_user_error
 @dataclass
 class Args:
     probe: tyro.conf.Positional[Literal["rival-lowpass", "margins", "limit-excess",
-                                        "limit-exploration"]]
+                                        "limit-exploration", "lead-excess"]]
     """Which probe to run."""
     models: list[Path] = field(
         default_factory=lambda: [Path("archive/deploy_large_batch_10m.zip")])
-    """margins: the models beside the analytic leads; limit-excess, limit-exploration: the first
-    is played."""
+    """margins: the models beside the analytic leads; limit-excess, limit-exploration,
+    lead-excess: the first is played."""
     conditions: list[str] = field(default_factory=lambda: ["delay1"])
     """margins: the conditions (studies/deploy.py's names)."""
     lead_filter_hz: list[float] = field(default_factory=lambda: [0.0])
@@ -143,6 +144,43 @@ def limit_exploration(args: Args, seeds: list[int]) -> None:
               f"episode ({len(paths)} paths)", flush=True)
 
 
+def lead_excess(args: Args, seeds: list[int]) -> None:
+    """On the paths limit_lead_only charges, a 2 s episode from 0.5 s: the acceleration excess
+    (clipped per joint to [0, 1], summed) of the deterministic lead's joint goals, of the zero
+    lead's goals solved beside them (TaskBatch's reference), and their difference (what
+    limit_lead_only charges per unit of w_limit), by condition."""
+    from panda_lead import trajectory
+    from panda_lead.config import LIMIT_FEASIBLE_ACC, EnvConfig
+    from panda_lead.limits import JOINT_ACC
+    from panda_lead.models import load_policy
+    from panda_lead.task import LeadTask
+
+    policy, env, _ = load_policy(args.models[0])
+    base = EnvConfig.from_dict(env).replace(
+        w_limit=1.0, limit_lead_only=True, episode_steps=200, random_delay=False,
+        random_noise=False, nominal_share=0.0, obs_delay=0, action_delay=0, target_delay=0)
+    noise = base.obs_noise
+    paths = [s for s in seeds if trajectory.sample(s).peak_acc <= LIMIT_FEASIBLE_ACC]
+    conditions = {"none": dict(obs_noise={}),
+                  "latency 1 step": dict(obs_noise={}, obs_delay=1, action_delay=1),
+                  "latency 3 steps": dict(obs_noise={}, obs_delay=3, action_delay=3),
+                  "noise 1 mm": dict(obs_noise={k: 0.1 * v for k, v in noise.items()}),
+                  "noise 1 cm": dict(obs_noise=noise)}
+    for name, settings in conditions.items():
+        task = LeadTask(base.replace(**settings), len(paths), nthread=2)
+        obs, goals, refs = task.reset(None, paths), [], []
+        for _ in range(base.episode_steps):
+            obs = task.step(policy.predict(obs, deterministic=True)[0])[0]
+            goals.append(task.core.q_goal.copy())
+            refs.append(task._ref_goal.copy())
+        skip = int(round(0.5 / task.dt)) - 2
+        lead, zero = (np.clip(np.abs(np.diff(np.array(q), 2, axis=0))[skip:] / task.dt ** 2
+                              / JOINT_ACC - 1, 0, 1).sum(axis=(0, 2)).mean()
+                      for q in (goals, refs))
+        print(f"{name}: excess per episode, the lead's goals {lead:.1f}, the zero lead's "
+              f"{zero:.1f}, difference {lead - zero:.1f} ({len(paths)} paths)", flush=True)
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     from panda_lead.core import control_dt
@@ -160,8 +198,10 @@ def main(args: Args) -> None:
         margins(args, steps, list(TUNE_SEEDS))
     elif args.probe == "limit-excess":
         limit_excess(args, list(TUNE_SEEDS)[:30])
-    else:
+    elif args.probe == "limit-exploration":
         limit_exploration(args, list(TUNE_SEEDS))
+    else:
+        lead_excess(args, list(TUNE_SEEDS))
 
 
 if __name__ == "__main__":

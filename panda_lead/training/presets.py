@@ -372,6 +372,17 @@ PRESETS.update([
                                                  limit_lead_only=True)},
             init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
             log_std_init=-3.7),
+    # ... at a tenth of the weight: at 0.3 the evaluation error rose steadily from 2.6 to 5.3 cm
+    # in 1.9M steps (a pilot, stopped): the lead's own response to sensor noise adds ~135 of
+    # excess a feasible episode at 1 mm of noise and ~305 at 1 cm, against ~6 without noise
+    # (deploy_probes.py lead-excess), and the policy gave up tracking rather than smooth it.
+    _preset("deploy_large_batch_limit_lead_sde_light_continued", "deploy_large_batch_continued "
+            "with the limit term on what the lead adds (w_limit 0.03, limit_lead_only), "
+            "exploring with gSDE at ~1.2 cm (25-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.03,
+                                                 limit_lead_only=True)},
+            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
+            log_std_init=-3.7),
     _preset("deploy_large_batch_sde_continued", "deploy_large_batch_continued exploring with "
             "gSDE at ~1.2 cm: the control of deploy_large_batch_limit_lead_sde_continued (25-D)",
             **DEPLOY_LARGE_BATCH, init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip",
