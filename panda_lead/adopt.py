@@ -458,8 +458,9 @@ def _sb3_model(foreign: Foreign, env_config: EnvConfig):
     class Spaces(gym.Env):  # never stepped: PPO only reads its spaces
         observation_space, action_space = obs_space, act_space
 
-    model = PPO("MlpPolicy", Spaces(), device="cpu",
-                policy_kwargs=policy_kwargs_of({"policy": foreign.spec}))
+    kwargs = policy_kwargs_of({"policy": foreign.spec})
+    model = PPO("MlpPolicy", Spaces(), device="cpu", use_sde=kwargs.pop("use_sde", False),
+                policy_kwargs=kwargs)
     with torch.no_grad():
         model.policy.load_state_dict(foreign.state)
     model.num_timesteps = foreign.timesteps

@@ -479,9 +479,11 @@ def policy_kwargs_of(side: dict) -> dict:
     spec = check_policy_spec(side.get("policy"), "sidecar")
     act = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[spec["activation_fn"]]
     arch = spec["net_arch"]
-    return {"net_arch": dict(arch) if isinstance(arch, dict) else list(arch),
-            "activation_fn": act, "log_std_init": float(spec["log_std_init"]),
-            "use_sde": spec.get("use_sde", False)}
+    kwargs = {"net_arch": dict(arch) if isinstance(arch, dict) else list(arch),
+              "activation_fn": act, "log_std_init": float(spec["log_std_init"])}
+    if spec.get("use_sde"):  # (PPO passes its own use_sde to the policy: callers pop it)
+        kwargs["use_sde"] = True
+    return kwargs
 
 
 def spaces_for(env_config: EnvConfig):

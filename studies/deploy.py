@@ -60,6 +60,8 @@ LABELS = {"none": "no delay, no noise", "delay1": "latency 1 step (10 ms)",
           "targetnoise2": "target noise 2 cm (arm exact)",
           "targetnoise0.1": "target noise 1 mm (arm exact)"}
 SKIP_S = 0.5  # the swing from home, as the settled error leaves it out
+# the figure's marker per condition (strict: a new condition without one fails on import)
+MARKERS = dict(zip(CONDITIONS, ("o", "s", "D", "<", ">", "^", "v", "P", "X", "*"), strict=True))
 
 
 @dataclass
@@ -384,8 +386,6 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(10, 6.5), constrained_layout=True)
     names = list(dict.fromkeys(r["name"] for r in rows))
     colours = colours_for(names)  # the baselines keep the repo's colours
-    markers = dict(zip(CONDITIONS, ("o", "s", "D", "<", ">", "^", "v", "P", "X"),
-                       strict=True))
     for name in names:
         pts = [r for r in rows if r["name"] == name]
         x = [r["jerk"].mean_b for r in pts]
@@ -395,12 +395,12 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
             e = r["err"]
             lo, hi = r["err_ci"]
             ax.errorbar(r["jerk"].mean_b, e.mean_b, yerr=[[e.mean_b - lo], [hi - e.mean_b]],
-                        fmt=markers[r["cond"]], color=colours[name], capsize=2, ms=7,
+                        fmt=MARKERS[r["cond"]], color=colours[name], capsize=2, ms=7,
                         mec="black", mew=0.5)
     for name in names:
         ax.plot([], [], "-", color=colours[name], lw=4, label=name)
     for cond in dict.fromkeys(r["cond"] for r in rows):
-        ax.plot([], [], markers[cond], color="grey", label=LABELS[cond])
+        ax.plot([], [], MARKERS[cond], color="grey", label=LABELS[cond])
     ax.set_xscale("log")
     ax.set(xlabel="tip jerk RMS (m/s^3, log scale)", ylabel="mean tracking error (cm), 95% CI",
            title=f"Error against jerk per controller and condition (test seeds {seeds[0]}-"

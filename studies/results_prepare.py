@@ -18,7 +18,8 @@ from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SHAR
 LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
                "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m",
                "deploy_large_batch_from_headline_5m", "deploy_large_batch_continued_5m",
-               "deploy_large_batch_limit_continued_5m")
+               "deploy_large_batch_limit_continued_5m", "deploy_large_batch_sde_continued_5m",
+               "deploy_large_batch_limit_lead_sde_light_continued_5m")
 # the headline study's seeds trained on, with and without the path ahead (issue 37; 5M steps
 # on top of v5_err_decay_kept's, train.py --init-from)
 CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m")

@@ -379,6 +379,15 @@ def table_steps() -> list[Step]:
     # ... with the Panda's joint acceleration limits in the reward (w_limit), against its
     # control: the same start, budget and world without the term
     steps += _five_seeds("deploy_large_batch_limit_continued_5m", cont)
+    # ... exploring with gSDE instead of a fresh Gaussian each step (the same start and
+    # budget), and with the limit term on what the lead adds (limit_lead_only) on top of it:
+    # against each other, and all ten seeds' acceptance on the 1,000 test seeds
+    sde, light = ("deploy_large_batch_sde_continued_5m",
+                  "deploy_large_batch_limit_lead_sde_light_continued_5m")
+    steps += _five_seeds(sde, cont) + _five_seeds(light, sde)
+    steps.append(_deploy([f"{a}seeds/{st}_s{k}.zip" for st in (light, sde) for k in range(1, 6)],
+                         f"results/studies/{light}/test1000", ("none", "delay1", "delay3"),
+                         "0-999", "--check-from", "0.75"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
