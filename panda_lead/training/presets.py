@@ -37,6 +37,16 @@ DEPLOY_LARGE_BATCH = dict(env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nomin
 DEPLOY_LARGE_BATCH_N90 = {**DEPLOY_LARGE_BATCH,
                           "env": dict(DEPLOY_LARGE_BATCH["env"], nominal_share=0.9)}
 
+# deploy_large_batch's trained seeds continued with gSDE exploration at ~1.2 cm (issue 36)
+SDE_CONTINUED = dict(init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
+                     log_std_init=-3.7)
+
+
+def _limit_lead(w_limit: float) -> dict:
+    """deploy_large_batch with the limit term on what the lead adds (limit_lead_only)."""
+    return {**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=w_limit,
+                                              limit_lead_only=True)}
+
 
 def _preset(name: str, doc: str, **kw) -> tuple[str, TrainConfig]:
     env = EnvConfig(**kw.pop("env", {}))
@@ -368,10 +378,7 @@ PRESETS.update([
     _preset("deploy_large_batch_limit_lead_sde_continued", "deploy_large_batch_continued with "
             "the limit term on what the lead adds (w_limit 0.3, limit_lead_only), exploring "
             "with gSDE at ~1.2 cm (25-D)",
-            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.3,
-                                                 limit_lead_only=True)},
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
-            log_std_init=-3.7),
+            **_limit_lead(0.3), **SDE_CONTINUED),
     # ... at a tenth of the weight: at 0.3 the evaluation error rose steadily from 2.6 to 5.3 cm
     # in 1.9M steps (a pilot, stopped): the lead's own response to sensor noise adds ~135 of
     # excess a feasible episode at 1 mm of noise and ~305 at 1 cm, against ~6 without noise
@@ -379,14 +386,10 @@ PRESETS.update([
     _preset("deploy_large_batch_limit_lead_sde_light_continued", "deploy_large_batch_continued "
             "with the limit term on what the lead adds (w_limit 0.03, limit_lead_only), "
             "exploring with gSDE at ~1.2 cm (25-D)",
-            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.03,
-                                                 limit_lead_only=True)},
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
-            log_std_init=-3.7),
+            **_limit_lead(0.03), **SDE_CONTINUED),
     _preset("deploy_large_batch_sde_continued", "deploy_large_batch_continued exploring with "
-            "gSDE at ~1.2 cm: the control of deploy_large_batch_limit_lead_sde_continued (25-D)",
-            **DEPLOY_LARGE_BATCH, init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip",
-            use_sde=True, log_std_init=-3.7),
+            "gSDE at ~1.2 cm: the control of deploy_large_batch_limit_lead_sde[_light]_continued "
+            "(25-D)", **DEPLOY_LARGE_BATCH, **SDE_CONTINUED),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
