@@ -121,8 +121,8 @@ def test_one_gsde_update_matches_sb3_bit_for_bit():
 
 
 def test_a_gsde_run_saves_a_model_that_loads_and_acts_as_trained(tmp_path):
-    """The sidecar records use_sde; models.load_policy rebuilds the gSDE policy from it and
-    its deterministic action is the trained policy's mean."""
+    """The sidecar records use_sde; models.load_policy rebuilds the gSDE policy from it, its
+    deterministic action is the trained policy's mean, and eval.py --adopt keeps it."""
     from panda_lead.cli.train import parse_args
     from panda_lead.models import load_policy, read_sidecar
     from panda_lead.training import train
@@ -142,6 +142,20 @@ def test_a_gsde_run_saves_a_model_that_loads_and_acts_as_trained(tmp_path):
         mean = policy.action_net(policy.mlp_extractor.forward_actor(
             torch.as_tensor(obs, dtype=torch.float32)))
     assert np.allclose(act, np.clip(mean.numpy(), -1, 1))
+    # ... and adopted as an archive entry of its own (eval.py --adopt), still a gSDE policy
+    import os
+
+    from panda_lead.cli import models as model_commands
+
+    old = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        model_commands.main(["--adopt", str(model), "--name", "sde"], "eval.py")
+    finally:
+        os.chdir(old)
+    adopted, _, _ = load_policy(tmp_path / "archive" / "sde.zip")
+    assert adopted.use_sde and all(torch.equal(a, b) for a, b in zip(
+        adopted.state_dict().values(), policy.state_dict().values(), strict=True))
 
 
 def test_kl_early_stop_matches_sb3():
