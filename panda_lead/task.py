@@ -90,7 +90,7 @@ class LeadTask:
         # limit_lead_only: the zero lead's last two goals, and the slots whose path the term
         # leaves out (set at each reset)
         self._ref_hist = np.zeros((n, 2, 7)) if c.limit_lead_only else None
-        self._ref_goal = np.zeros((n, 7))
+        self._ref_goal = None  # (set each step before the core's, under limit_lead_only)
         self._limit_off = np.ones(n, bool) if c.limit_lead_only else None
         # the installation feature: each slot's latencies and target noise (config.OBS_SCALE)
         self._installation = np.zeros((n, 4))
@@ -479,7 +479,9 @@ class LeadTask:
                 core.step(*self._feedforward_step(self.lead))
             else:
                 if self._ref_hist is not None:  # limit_lead_only: the zero lead's goal first
-                    aim = core.target()[0] if shift is None else core.target()[0] + shift
+                    aim = core.target()[0]  # (a copy: the shift may be added in place)
+                    if shift is not None:
+                        aim += shift
                     self._ref_goal = core.ik(aim)
                 core.step(self.lead if shift is None else self.lead + shift)
         elif kind == "joint":

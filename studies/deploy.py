@@ -212,9 +212,12 @@ def main(args: Args) -> None:
             print(f"{cond:7s} {name:28s} error {r['err'].mean_b:5.2f} cm, jerk "
                   f"{r['jerk'].mean_b:7.1f}, accepted {100 * r['share']:3.0f}% "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
-        window_rows += [_window_row(cond, name, sets, t, args.bootstrap)
-                        for name in sets for t in ([SKIP_S, *args.check_from]
-                                                   if args.check_from else [])]
+        if args.check_from:  # each controller checked once per start (0.5 s: done above)
+            by_start = {SKIP_S: checks, **{t: {name: accepted_by_arm(rs, t)
+                                               for name, rs in sets.items()}
+                                           for t in args.check_from}}
+            window_rows += [_window_row(cond, name, at, t, args.bootstrap)
+                            for name in sets for t, at in by_start.items()]
         del sets
     from panda_lead.atomicio import atomic_write
 
@@ -258,13 +261,14 @@ def _row(cond: str, name: str, analytic: dict, rollouts: dict, checks_a: dict, c
             "charged": len(cmp.pairing.charged[name])}
 
 
-def _window_row(cond: str, name: str, sets: dict, start: float, n_boot: int) -> dict:
-    """The share accepted when the check starts at ``start`` s, against the analytic lead's
-    share from the same start, paired by seed (McNemar's exact test, as the main table)."""
+def _window_row(cond: str, name: str, checks_at: dict, start: float, n_boot: int) -> dict:
+    """The share accepted when the check starts at ``start`` s (``checks_at``: controller ->
+    seed -> limits.Check from then), against the analytic lead's share from the same start,
+    paired by seed (McNemar's exact test, as the main table)."""
     from panda_lead.metrics import bootstrap_ci, sign_test_p
 
-    seeds = sorted(sets["Analytic"])
-    checks, checks_a = accepted_by_arm(sets[name], start), accepted_by_arm(sets["Analytic"], start)
+    checks, checks_a = checks_at[name], checks_at["Analytic"]
+    seeds = sorted(checks_a)
     ok = np.array([float(checks[s].accepted) for s in seeds])
     delta = ok - np.array([float(checks_a[s].accepted) for s in seeds])
     return {"cond": cond, "name": name, "start": start, "share": float(ok.mean()),

@@ -104,6 +104,24 @@ def limit_excess(args: Args, seeds: list[int]) -> None:
               flush=True)
 
 
+def _limit_world(model: Path, w_limit: float, seeds: list[int]):
+    """-> (the model's policy, its env as a fixed nominal world, 2 s episodes, with
+    limit_lead_only's term at ``w_limit``, the seeds whose paths the term charges, and the
+    model's own obs_noise, for the probes to put back)."""
+    from panda_lead import trajectory
+    from panda_lead.config import LIMIT_FEASIBLE_ACC, EnvConfig
+    from panda_lead.models import load_policy
+
+    policy, env, _ = load_policy(model)
+    config = EnvConfig.from_dict(env)
+    nominal = config.replace(
+        w_limit=w_limit, limit_lead_only=True, episode_steps=200, random_delay=False,
+        random_noise=False, nominal_share=0.0, obs_delay=0, action_delay=0, target_delay=0,
+        obs_noise={})
+    paths = [s for s in seeds if trajectory.sample(s).peak_acc <= LIMIT_FEASIBLE_ACC]
+    return policy, nominal, paths, config.obs_noise
+
+
 def limit_exploration(args: Args, seeds: list[int]) -> None:
     """limit_lead_only's term (w_limit 0.2, as deploy_large_batch_limit_lead_continued) summed
     over a 2 s episode of the nominal world on the paths it charges, for the first model's
@@ -113,19 +131,12 @@ def limit_exploration(args: Args, seeds: list[int]) -> None:
     episode, its entries' std exp(log_std_init) (-3.7: ~0.08 of the bound here)."""
     import torch
 
-    from panda_lead import trajectory
-    from panda_lead.config import LIMIT_FEASIBLE_ACC, EnvConfig
-    from panda_lead.models import load_policy
     from panda_lead.task import LeadTask
 
-    policy, env, _ = load_policy(args.models[0])
-    config = EnvConfig.from_dict(env).replace(
-        w_limit=0.2, limit_lead_only=True, episode_steps=200, random_delay=False,
-        random_noise=False, nominal_share=0.0, obs_delay=0, action_delay=0, target_delay=0,
-        obs_noise={})
-    paths = [s for s in seeds if trajectory.sample(s).peak_acc <= LIMIT_FEASIBLE_ACC]
+    policy, config, paths, _ = _limit_world(args.models[0], 0.2, seeds)
     for kind, size in (("none", 0.0), ("white", 0.02), ("white", 0.082), ("gsde", -3.7)):
         task, rng = LeadTask(config, len(paths), nthread=2), np.random.default_rng(0)
+        task.rngs = [np.random.default_rng(s) for s in paths]  # (as rollout.py seeds them)
         obs, limit, distance, stds = task.reset(None, paths), 0.0, 0.0, []
         matrix = np.exp(size) * rng.standard_normal((len(paths), 64, 3))
         for _ in range(config.episode_steps):
@@ -152,18 +163,10 @@ def lead_excess(args: Args, seeds: list[int]) -> None:
     (clipped per joint to [0, 1], summed) of the deterministic lead's joint goals, of the zero
     lead's goals solved beside them (TaskBatch's reference), and their difference (what
     limit_lead_only charges per unit of w_limit), by condition."""
-    from panda_lead import trajectory
-    from panda_lead.config import LIMIT_FEASIBLE_ACC, EnvConfig
     from panda_lead.limits import JOINT_ACC
-    from panda_lead.models import load_policy
     from panda_lead.task import LeadTask
 
-    policy, env, _ = load_policy(args.models[0])
-    base = EnvConfig.from_dict(env).replace(
-        w_limit=1.0, limit_lead_only=True, episode_steps=200, random_delay=False,
-        random_noise=False, nominal_share=0.0, obs_delay=0, action_delay=0, target_delay=0)
-    noise = base.obs_noise
-    paths = [s for s in seeds if trajectory.sample(s).peak_acc <= LIMIT_FEASIBLE_ACC]
+    policy, base, paths, noise = _limit_world(args.models[0], 1.0, seeds)
     conditions = {"none": dict(obs_noise={}),
                   "latency 1 step": dict(obs_noise={}, obs_delay=1, action_delay=1),
                   "latency 3 steps": dict(obs_noise={}, obs_delay=3, action_delay=3),
@@ -171,6 +174,7 @@ def lead_excess(args: Args, seeds: list[int]) -> None:
                   "noise 1 cm": dict(obs_noise=noise)}
     for name, settings in conditions.items():
         task = LeadTask(base.replace(**settings), len(paths), nthread=2)
+        task.rngs = [np.random.default_rng(s) for s in paths]  # the noise's draws, repeatable
         obs, goals, refs = task.reset(None, paths), [], []
         for _ in range(base.episode_steps):
             obs = task.step(policy.predict(obs, deterministic=True)[0])[0]

@@ -380,8 +380,8 @@ PRESETS.update([
             "with gSDE at ~1.2 cm (25-D)",
             **_limit_lead(0.3), **SDE_CONTINUED),
     # ... at a tenth of the weight: at 0.3 the evaluation error rose steadily from 2.6 to 5.3 cm
-    # in 1.9M steps (a pilot, stopped): the lead's own response to sensor noise adds ~135 of
-    # excess a feasible episode at 1 mm of noise and ~305 at 1 cm, against ~6 without noise
+    # in 1.9M steps (a pilot, stopped): the lead's own response to sensor noise adds ~139 of
+    # excess a feasible episode at 1 mm of noise and ~307 at 1 cm, against ~6 without noise
     # (deploy_probes.py lead-excess), and the policy gave up tracking rather than smooth it.
     _preset("deploy_large_batch_limit_lead_sde_light_continued", "deploy_large_batch_continued "
             "with the limit term on what the lead adds (w_limit 0.03, limit_lead_only), "
