@@ -387,7 +387,7 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     from panda_lead.metrics.figures import colours_for, pyplot, save_figure
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(10, 6.5), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(13, 6.5), constrained_layout=True)
     names = list(dict.fromkeys(r["name"] for r in rows))
     colours = colours_for(names)  # the baselines keep the repo's colours
     for name in names:
@@ -410,7 +410,8 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
            title=f"Error against jerk per controller and condition (test seeds {seeds[0]}-"
                  f"{seeds[-1]}, n={len(seeds)}); lower left is better")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize="small", ncol=2)
+    # beside the axes, not on them: with many controllers an inside legend hides points
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     save_figure(fig, path)
 
 

@@ -92,7 +92,7 @@ class TrainConfig:
     Gaussian draw per step: the noise is the policy's last hidden layer times a random matrix,
     drawn every --sde-sample-freq steps, so it varies as smoothly as the state does. White
     per-step noise shakes the 100 Hz joint goals far over the Panda's acceleration limits
-    whatever the policy's mean does (docs/deploy.md, "The arm's limits in the reward");
+    whatever the policy's mean does (docs/deploy.md, "Where the acceptance gap lies");
     --log-std-init then scales the matrix's entries (the action's std is about their std x
     the norm of the hidden layer)."""
     sde_sample_freq: int = -1
