@@ -244,6 +244,7 @@ def test_caps_pairs_each_observation_with_the_next_of_its_episode():
         steps_first = np.array(buf.observations)  # (n_steps, n_envs, obs_dim), before flattening
         starts = np.array(buf.episode_starts)
         successor, has_next = (t.numpy() for t in model._successors())
+        predecessor, has_previous = (t.numpy() for t in model._predecessors())
     finally:
         vec.close()
     n_steps, n_envs = starts.shape
@@ -256,12 +257,16 @@ def test_caps_pairs_each_observation_with_the_next_of_its_episode():
             assert bool(has_next[i]) == expect, (env, step)
             if expect:
                 assert np.array_equal(flat[successor[i]], steps_first[step + 1, env])
+            expect = step > 0 and not starts[step, env]  # (the curvature term's other side)
+            assert bool(has_previous[i]) == expect, (env, step)
+            if expect:
+                assert np.array_equal(flat[predecessor[i]], steps_first[step - 1, env])
 
 
 def _smoothness(model, buf):
-    """The two quantities CAPS penalises, on the rollout ``buf`` (unflattened): the mean
-    squared change of the mean action to the next observation, and under the spatial term's
-    noise."""
+    """The quantities the CAPS terms penalise, on the rollout ``buf`` (unflattened): the mean
+    squared change of the mean action to the next observation, under the spatial term's
+    noise, and its mean squared second difference within an episode."""
     obs = torch.as_tensor(np.array(buf.observations).swapaxes(0, 1))
     starts = np.array(buf.episode_starts).swapaxes(0, 1)
     n_envs, n_steps, dim = obs.shape
@@ -274,10 +279,13 @@ def _smoothness(model, buf):
     mean = mean.reshape(n_envs, n_steps, -1)
     keep = torch.as_tensor(starts[:, 1:] == 0)
     temporal = ((mean[:, 1:] - mean[:, :-1]) ** 2).mean(dim=-1)[keep].mean().item()
-    return temporal, spatial
+    both = keep[:, 1:] & keep[:, :-1]
+    second = mean[:, 2:] - 2 * mean[:, 1:-1] + mean[:, :-2]
+    curvature = (second ** 2).mean(dim=-1)[both].mean().item()
+    return temporal, spatial, curvature
 
 
-@pytest.mark.parametrize("term", ["temporal", "spatial"])
+@pytest.mark.parametrize("term", ["temporal", "spatial", "curvature"])
 def test_caps_terms_make_the_policy_smoother_than_ppo_alone(term):
     """From the same weights, rollout and random state, an update with the term weighted
     heavily leaves the policy's mean action smoother on the rollout than PPO's update alone,
@@ -295,9 +303,10 @@ def test_caps_terms_make_the_policy_smoother_than_ppo_alone(term):
             results[weight] = (_smoothness(model, state[2]), logs)
     finally:
         vec.close()
-    index = 0 if term == "temporal" else 1
+    index = ["temporal", "spatial", "curvature"].index(term)
     assert results[1e4][0][index] < 0.5 * results[0.0][0][index]
     assert "train/caps_temporal" not in results[0.0][1]  # off: SB3's logs, nothing added
+    assert "train/caps_curvature" not in results[0.0][1]
     assert results[1e4][1][f"train/caps_{term}"] > 0
 
 
@@ -306,8 +315,10 @@ def test_caps_needs_the_fast_update_and_sane_weights():
 
     with pytest.raises(UserError, match="need the fast update"):
         TrainConfig(caps_temporal=0.1, fast_update=False)
+    with pytest.raises(UserError, match="need the fast update"):
+        TrainConfig(caps_curvature=0.1, fast_update=False)
     for bad in (dict(caps_spatial=-1.0), dict(caps_temporal=float("nan")),
-                dict(caps_sigma=0.0)):
+                dict(caps_sigma=0.0), dict(caps_curvature=-0.5)):
         with pytest.raises(UserError, match="caps"):
             TrainConfig(**bad)
 

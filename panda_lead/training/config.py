@@ -83,6 +83,11 @@ class TrainConfig:
     caps_spatial: float = 0.0
     """CAPS spatial smoothness weight: PPO's loss plus this x the mean squared change of the
     mean action under Gaussian noise of --caps-sigma on the observation. 0: off."""
+    caps_curvature: float = 0.0
+    """Curvature smoothness weight (issue 36; needs the fast update): PPO's loss plus this x
+    the mean squared second difference of the policy's mean action over three consecutive
+    observations of an episode: the lead's acceleration, where a first difference (CAPS's
+    temporal term) also charges the lead's slow changes. 0: off."""
     caps_sigma: float = 0.05
     """Standard deviation of the spatial term's observation noise, in observation units (each
     feature divided by its config.OBS_SCALE: 0.05 is 5 cm on a position, 2.5 mm on the tip
@@ -157,6 +162,7 @@ class TrainConfig:
                                       ("log_std_init", -math.inf, math.inf, False),
                                       ("caps_temporal", 0, math.inf, False),
                                       ("caps_spatial", 0, math.inf, False),
+                                      ("caps_curvature", 0, math.inf, False),
                                       ("caps_sigma", 0, math.inf, True)):
             v = getattr(self, name)
             ok = isinstance(v, int | float) and math.isfinite(v) and v <= hi and (
@@ -174,9 +180,10 @@ class TrainConfig:
                             f"placeholder), got {self.init_from!r}")
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
-        if (self.caps_temporal or self.caps_spatial) and not self.fast_update:
-            raise UserError("--caps-temporal and --caps-spatial need the fast update (FastPPO): "
-                            "drop --no-fast-update")
+        if (self.caps_temporal or self.caps_spatial or self.caps_curvature
+                ) and not self.fast_update:
+            raise UserError("--caps-temporal, --caps-spatial and --caps-curvature need the fast "
+                            "update (FastPPO): drop --no-fast-update")
         if self.lr_schedule not in ("constant", "linear"):
             raise UserError(f"--lr-schedule must be constant or linear, got {self.lr_schedule!r}")
         if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1

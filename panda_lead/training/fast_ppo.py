@@ -37,7 +37,12 @@ action, added to PPO's loss: temporal, ``caps_temporal`` x the mean squared chan
 action between an observation and the next one of the same episode in the rollout; spatial,
 ``caps_spatial`` x its mean squared change under Gaussian noise of ``caps_sigma`` on the
 observation. Smoothness then shapes the policy's mapping, not its reward: a reward penalty on
-the action's change (`w_action_change`) also pays the policy to be late.
+the action's change (`w_action_change`) also pays the policy to be late. A third, beyond CAPS:
+``caps_curvature`` x the mean squared second difference of the mean action over an observation,
+the one before and the one after it in the same episode (the lead's acceleration, which is what
+a Panda's joint acceleration limits see). For a sinusoid at f the squared second difference is
+(2 sin(pi f dt))^2 times the squared first one: 0.06 at 4 Hz, 0.19 at 7 Hz (dt 10 ms), so
+against the first difference it charges a 7 Hz ring 3x more than a 4 Hz swing of the lead.
 """
 
 from __future__ import annotations
@@ -120,15 +125,17 @@ class FastPPO(PPO):
     process's own count restored after it; None: leave the count alone."""
 
     def __init__(self, *args, update_threads: int | None = None, caps_temporal: float = 0.0,
-                 caps_spatial: float = 0.0, caps_sigma: float = 0.05, **kwargs):
+                 caps_spatial: float = 0.0, caps_sigma: float = 0.05,
+                 caps_curvature: float = 0.0, **kwargs):
         self.update_threads = update_threads
         self.caps_temporal, self.caps_spatial, self.caps_sigma = (caps_temporal, caps_spatial,
                                                                   caps_sigma)
+        self.caps_curvature = caps_curvature
         super().__init__(*args, **kwargs)
 
     @property
     def _caps(self) -> bool:
-        return bool(self.caps_temporal or self.caps_spatial)
+        return bool(self.caps_temporal or self.caps_spatial or self.caps_curvature)
 
     def _fast_path_applies(self) -> bool:
         p = self.policy
@@ -186,19 +193,40 @@ class FastPPO(PPO):
         return (th.as_tensor(following, device=self.device),
                 th.as_tensor(valid, dtype=th.float32, device=self.device))
 
-    def _caps_losses(self, obs: th.Tensor, mean: th.Tensor, next_obs: th.Tensor,
-                     has_next: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """CAPS's temporal and spatial terms for one minibatch: mean squared differences of
-        the mean action, per action dimension (zero when the weight is 0)."""
+    def _predecessors(self) -> tuple[th.Tensor, th.Tensor]:
+        """For each flat buffer index, the index of the observation before it of the same env
+        and episode, and whether there is one (not at the rollout's first step, not at an
+        episode's first observation), laid out as _successors'."""
+        buf = self.rollout_buffer
+        n_steps, n_envs = buf.buffer_size, buf.n_envs
+        n = n_steps * n_envs
+        before = np.maximum(np.arange(n) - 1, 0)
+        step = np.tile(np.arange(n_steps), n_envs)
+        starts = np.asarray(buf.episode_starts).swapaxes(0, 1).reshape(-1)
+        valid = (step > 0) & (starts == 0)
+        return (th.as_tensor(before, device=self.device),
+                th.as_tensor(valid, dtype=th.float32, device=self.device))
+
+    def _caps_losses(self, mb: dict, mean: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """CAPS's temporal and spatial terms and the curvature term for one minibatch: mean
+        squared (first or second) differences of the mean action, per action dimension (zero
+        when the weight is 0)."""
         zero = mean.new_zeros(())
-        temporal = spatial = zero
+        temporal = spatial = curvature = zero
+        has_next = mb["has_next"]
+        if self.caps_temporal or self.caps_curvature:
+            following = self._mean_action(mb["next_observations"])
         if self.caps_temporal:
-            diff = ((mean - self._mean_action(next_obs)) ** 2).mean(dim=1)
+            diff = ((mean - following) ** 2).mean(dim=1)
             temporal = (diff * has_next).sum() / has_next.sum().clamp(min=1.0)
         if self.caps_spatial:
-            noisy = obs + self.caps_sigma * th.randn_like(obs)
+            noisy = mb["observations"] + self.caps_sigma * th.randn_like(mb["observations"])
             spatial = ((mean - self._mean_action(noisy)) ** 2).mean()
-        return temporal, spatial
+        if self.caps_curvature:
+            both = has_next * mb["has_previous"]
+            second = following - 2 * mean + self._mean_action(mb["previous_observations"])
+            curvature = ((second ** 2).mean(dim=1) * both).sum() / both.sum().clamp(min=1.0)
+        return temporal, spatial, curvature
 
     def _flat_tensors(self) -> dict[str, th.Tensor]:
         """The buffer's arrays flattened as RolloutBuffer.get flattens them (in place, once per
@@ -238,9 +266,11 @@ class FastPPO(PPO):
         # SB3: batch_size None in get() means the whole buffer; PPO always passes its own.
         batch = self.batch_size
         pg_losses, value_losses, entropy_losses, clip_fractions = [], [], [], []
-        caps_t, caps_s = [], []
+        caps_t, caps_s, caps_c = [], [], []
         if self._caps:
             successor, has_successor = self._successors()
+            if self.caps_curvature:
+                predecessor, has_predecessor = self._predecessors()
         params = list(self.policy.parameters())
         continue_training = True
         for epoch in range(self.n_epochs):
@@ -251,6 +281,10 @@ class FastPPO(PPO):
             if self._caps:
                 epoch_data["next_observations"] = flat["observations"][successor[order]]
                 epoch_data["has_next"] = has_successor[order]
+                if self.caps_curvature:
+                    epoch_data["previous_observations"] = flat["observations"][
+                        predecessor[order]]
+                    epoch_data["has_previous"] = has_predecessor[order]
             for start in range(0, n, batch):
                 mb = {name: t[start:start + batch] for name, t in epoch_data.items()}
                 if self._caps:
@@ -271,11 +305,12 @@ class FastPPO(PPO):
                 entropy_loss = -th.mean(entropy)
                 loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
                 if self._caps:
-                    temporal, spatial = self._caps_losses(mb["observations"], mean,
-                                                          mb["next_observations"], mb["has_next"])
-                    loss = loss + self.caps_temporal * temporal + self.caps_spatial * spatial
+                    temporal, spatial, curvature = self._caps_losses(mb, mean)
+                    loss = (loss + self.caps_temporal * temporal + self.caps_spatial * spatial
+                            + self.caps_curvature * curvature)
                     caps_t.append(temporal.detach())
                     caps_s.append(spatial.detach())
+                    caps_c.append(curvature.detach())
                 with th.no_grad():
                     pg_losses.append(policy_loss.detach())
                     clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
@@ -302,6 +337,8 @@ class FastPPO(PPO):
         if self._caps:
             self.logger.record("train/caps_temporal", float(th.stack(caps_t).mean()) if caps_t else 0.0)
             self.logger.record("train/caps_spatial", float(th.stack(caps_s).mean()) if caps_s else 0.0)
+            if self.caps_curvature:
+                self.logger.record("train/caps_curvature", float(th.stack(caps_c).mean()))
 
     def _record(self, pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
                 loss, clip_range) -> None:
@@ -351,7 +388,8 @@ def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None 
         ppo["update_threads"] = update_threads
         ppo.update(caps_temporal=getattr(config, "caps_temporal", 0.0),
                    caps_spatial=getattr(config, "caps_spatial", 0.0),
-                   caps_sigma=getattr(config, "caps_sigma", 0.05))
+                   caps_sigma=getattr(config, "caps_sigma", 0.05),
+                   caps_curvature=getattr(config, "caps_curvature", 0.0))
         policy_kwargs["optimizer_kwargs"] = dict(eps=1e-5, foreach=True)  # SB3's eps for PPO
     if fast:
         return FastPPO(FastActorCriticPolicy, vec, seed=config.seed, device=config.device,

@@ -390,6 +390,18 @@ PRESETS.update([
     _preset("deploy_large_batch_sde_continued", "deploy_large_batch_continued exploring with "
             "gSDE at ~1.2 cm: the control of deploy_large_batch_limit_lead_sde[_light]_continued "
             "(25-D)", **DEPLOY_LARGE_BATCH, **SDE_CONTINUED),
+    # ... with the curvature term on the policy's mean (TrainConfig.caps_curvature): the
+    # 10M-step lead loses 3 points of the arm's acceptance to the analytic lead at 10 ms of
+    # latency, 60% of it a ring at the end of the swing from home (deploy.py --check-from);
+    # a reward term on the limits is swamped by exploration's noise, and gSDE lost latency
+    # acceptance. A ring is the lead's acceleration, which the curvature term charges on the
+    # mean action itself (~0.003-0.005 per unit weight at the start of these runs, against
+    # the temporal term's 0.002-0.003 and PPO's policy loss of ~0.004). Control:
+    # deploy_large_batch_continued (same start, budget and world).
+    *(_preset(f"deploy_large_batch_curv{w:g}_continued", "deploy_large_batch_continued with "
+              f"the curvature term on the policy's mean action (caps_curvature {w:g}) (25-D)",
+              **DEPLOY_LARGE_BATCH, caps_curvature=float(w),
+              init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip") for w in (3, 10)),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
