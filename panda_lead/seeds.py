@@ -51,6 +51,20 @@ MAX_SEEDS = 100_000
 MAX_SEED = 2**63 - 1
 
 
+def set_name(seeds) -> str:
+    """Which set these trajectory seeds all belong to, as a table names it: "test",
+    "selection", "tuning", "evaluation", "pool", "distillation" or, for a mix or none of them,
+    "trajectory"."""
+    seeds = list(seeds)
+    eval_seeds = {s for s, _ in EVAL_SET}
+    for name, members in (("test", TEST_SEEDS), ("selection", SELECT_SEEDS),
+                          ("tuning", TUNE_SEEDS), ("evaluation", eval_seeds),
+                          ("pool", POOL_SEEDS), ("distillation", DISTILL_SEEDS)):
+        if seeds and all(s in members for s in seeds):
+            return name
+    return "trajectory"
+
+
 def check_seed(seed: int, flag: str = "--seed") -> int:
     """A trajectory seed must be an integer in 0..MAX_SEED; else UserError naming ``flag``."""
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:

@@ -49,6 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from robustness import condition as robustness_condition  # noqa: E402
 
 from panda_lead.errors import UserError, exit_on_user_error  # noqa: E402
+from panda_lead.seeds import set_name  # noqa: E402
 
 CONDITIONS = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2",
               "targetnoise1", "targetnoise2", "targetnoise0.1")
@@ -336,7 +337,8 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
     if args.check_from:
         extra += f" --check-from {' '.join(f'{t:g}' for t in args.check_from)}"
     lines = [f"`uv run studies/deploy.py{models} --seeds {args.seeds}{extra}` "
-             f"({len(seeds)} test seeds, {time.strftime('%Y-%m-%d')}, commit {_commit()}).",
+             f"({len(seeds)} {set_name(seeds)} seeds, {time.strftime('%Y-%m-%d')}, commit "
+             f"{_commit()}).",
              "",
              "Differences are controller - analytic lead under the same condition, paired by "
              "seed, 95% bootstrap CIs (panda_lead.metrics.compare); a difference is *shown* "
@@ -407,7 +409,8 @@ def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
         ax.plot([], [], MARKERS[cond], color="grey", label=LABELS[cond])
     ax.set_xscale("log")
     ax.set(xlabel="tip jerk RMS (m/s^3, log scale)", ylabel="mean tracking error (cm), 95% CI",
-           title=f"Error against jerk per controller and condition (test seeds {seeds[0]}-"
+           title=f"Error against jerk per controller and condition ({set_name(seeds)} seeds "
+                 f"{seeds[0]}-"
                  f"{seeds[-1]}, n={len(seeds)}); lower left is better")
     ax.grid(alpha=0.3, which="both")
     # beside the axes, not on them: with many controllers an inside legend hides points

@@ -19,7 +19,11 @@ LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_lar
                "deploy_large_batch_caps30_5m", "deploy_large_batch_wide_n90_5m",
                "deploy_large_batch_from_headline_5m", "deploy_large_batch_continued_5m",
                "deploy_large_batch_limit_continued_5m", "deploy_large_batch_sde_continued_5m",
-               "deploy_large_batch_limit_lead_sde_light_continued_5m")
+               "deploy_large_batch_limit_lead_sde_light_continued_5m",
+               "deploy_large_batch_curv10_continued_5m")
+# single-seed pilots (seed 2, the hardware model's), every seed kept: the curvature term's weight
+CURVATURE_PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
+                    "deploy_large_batch_curv100_continued_5m")
 # the headline study's seeds trained on, with and without the path ahead (issue 37; 5M steps
 # on top of v5_err_decay_kept's, train.py --init-from)
 CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m")
@@ -31,11 +35,13 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
-              *LARGE_BATCH, *CONTINUED]
+              *LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                "deploy_caps_armfilter_5m": ["deploy_caps_armfilter_5m_rest"],
+               "deploy_large_batch_curv10_continued_5m": [
+                   "deploy_large_batch_curv10_continued_5m_rest"],
                **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
                                             HEADLINE_STUDY, "ikfree_5m"]}}
 # archived name -> (study, sweep folders holding its runs)
@@ -66,7 +72,9 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         "deploy_caps_armfilter_5m": "deploy_caps_armfilter_5m*",
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
-        "v5_err_decay_kept": "v5_err_decay_kept", **{s: s for s in (*LARGE_BATCH, *CONTINUED)}}
+        "v5_err_decay_kept": "v5_err_decay_kept",
+        **{s: s for s in (*LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS)},
+        "deploy_large_batch_curv10_continued_5m": "deploy_large_batch_curv10_continued_5m*"}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m", "preview_continued_10m"]

@@ -27,7 +27,8 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 # --by selection); the rest keep the rule they were archived by, the best of 15 evaluation
 # trajectories
 BY_SELECTION = {"deploy_caps_armfilter_5m", "deploy_large_batch_5m", "deploy_large_batch_wide_5m",
-                "deploy_large_batch_continued_5m", "v5_err_decay_preview_continued_5m"}
+                "deploy_large_batch_continued_5m", "v5_err_decay_preview_continued_5m",
+                "deploy_large_batch_curv10_continued_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -387,6 +388,19 @@ def table_steps() -> list[Step]:
     steps += _five_seeds(sde, cont) + _five_seeds(light, sde)
     steps.append(_deploy([f"{a}seeds/{st}_s{k}.zip" for st in (light, sde) for k in range(1, 6)],
                          f"results/studies/{light}/test1000", ("none", "delay1", "delay3"),
+                         "0-999", "--check-from", "0.75"))
+    # ... the curvature term on the policy's mean action (caps_curvature), from the same start
+    # and budget: the pilots' weights on 500 selection seeds (training seed 2, the hardware
+    # model's; never a test seed), then weight 10's five seeds against their control and all
+    # ten seeds' acceptance on the 1,000 test seeds
+    curv = "deploy_large_batch_curv10_continued_5m"
+    pilots = [f"{a}seeds/{cont}_s2.zip", *(f"{a}seeds/deploy_large_batch_curv{w}_continued_5m_s2.zip"
+                                           for w in (3, 10, 30, 100))]
+    steps.append(_deploy(pilots, f"results/studies/{curv}/pilots_selection500",
+                         ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
+    steps += _five_seeds(curv, cont)
+    steps.append(_deploy([f"{a}seeds/{st}_s{k}.zip" for st in (curv, cont) for k in range(1, 6)],
+                         f"results/studies/{curv}/test1000", ("none", "delay1", "delay3"),
                          "0-999", "--check-from", "0.75"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",

@@ -93,7 +93,8 @@ def test_deploy_writes_the_table_and_the_figure(tmp_path, capsys):
                        bootstrap=100, duration=0.8)
     deploy.main(args)
     text = (tmp_path / "deploy.md").read_text()
-    assert text.startswith("`uv run studies/deploy.py --seeds 0-1 --conditions noise1 delay1` ")
+    assert text.startswith("`uv run studies/deploy.py --seeds 0-1 --conditions noise1 delay1` "
+                           "(2 test seeds, ")
     rows = [line for line in text.splitlines() if line.startswith("| ")][1:]
     names = [(r.split(" | ")[0][2:], r.split(" | ")[1]) for r in rows]
     assert names == [("noise 1 cm", "Classical"), ("noise 1 cm", "Analytic"),

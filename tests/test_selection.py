@@ -177,3 +177,14 @@ def test_the_rank_counts_a_warm_started_models_starting_steps(tmp_path, monkeypa
     assert selection._budget({"model": "archive/warm.zip"}) == "5M + 2.5M"
     assert selection._budget({"model": "archive/lost.zip"}) == "? + 1M"
     assert selection._budget({"model": "archive/absent.zip"}) == ""
+
+
+def test_a_table_names_the_set_its_seeds_come_from():
+    """deploy.py's tables say which set they played (a table on selection seeds once called
+    them test seeds): every seed of one set names it, a mix names none."""
+    assert seeds.set_name(range(0, 100)) == "test"
+    assert seeds.set_name(seeds.SELECT_SEEDS[:500]) == "selection"
+    assert seeds.set_name(seeds.TUNE_SEEDS) == "tuning"
+    assert seeds.set_name([s for s, _ in seeds.EVAL_SET]) == "evaluation"
+    assert seeds.set_name([0, seeds.SELECT_SEEDS[0]]) == "trajectory"
+    assert seeds.set_name([]) == "trajectory"

@@ -401,7 +401,7 @@ PRESETS.update([
     *(_preset(f"deploy_large_batch_curv{w:g}_continued", "deploy_large_batch_continued with "
               f"the curvature term on the policy's mean action (caps_curvature {w:g}) (25-D)",
               **DEPLOY_LARGE_BATCH, caps_curvature=float(w),
-              init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip") for w in (3, 10)),
+              init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip") for w in (3, 10, 30, 100)),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
