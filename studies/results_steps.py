@@ -402,6 +402,18 @@ def table_steps() -> list[Step]:
     steps.append(_deploy([f"{a}seeds/{st}_s{k}.zip" for st in (curv, cont) for k in range(1, 6)],
                          f"results/studies/{curv}/test1000", ("none", "delay1", "delay3"),
                          "0-999", "--check-from", "0.75"))
+    # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
+    # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
+    # on all 1,000 test seeds, the noise rows against the filtered rival
+    steps.append(_deploy([f"{a}deploy_large_batch_curv10_10m_lp10.zip",
+                          f"{a}deploy_large_batch_10m_lp10.zip"],
+                         f"results/studies/{curv}/lowpass1000",
+                         ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2"),
+                         "0-999", "--check-from", "0.75"))
+    # ... and its five seeds' noise rows at the same 10 Hz (not re-tuned per seed)
+    steps.append(_deploy([f"{a}seeds/{curv}_s{k}.zip" for k in range(1, 6)],
+                         f"results/studies/{curv}/lowpass", ("noise1", "noise2"), "0-99",
+                         "--noisy-lead-filter-hz", "10"))
     # where the learned lead's jerk under noise comes from: the target's readings alone noisy
     split = [f"{a}seeds/deploy_nominal_5m_s3.zip", f"{a}seeds/deploy_nominal_5m_s1.zip",
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
