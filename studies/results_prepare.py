@@ -76,8 +76,10 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
         "v5_err_decay_kept": "v5_err_decay_kept",
-        **{s: s for s in (*LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS)},
-        "deploy_large_batch_curv10_continued_5m": "deploy_large_batch_curv10_continued_5m*"}
+        **{s: s for s in (*LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS)
+           if s not in EXTRA_SEEDS},
+        # (a study grown from its pilot under another sweep name: both sweeps' runs)
+        **{s: f"{s}*" for s in LARGE_BATCH if s in EXTRA_SEEDS}}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m", "preview_continued_10m"]

@@ -243,8 +243,8 @@ def test_caps_pairs_each_observation_with_the_next_of_its_episode():
         buf = model.rollout_buffer
         steps_first = np.array(buf.observations)  # (n_steps, n_envs, obs_dim), before flattening
         starts = np.array(buf.episode_starts)
-        successor, has_next = (t.numpy() for t in model._successors())
-        predecessor, has_previous = (t.numpy() for t in model._predecessors())
+        successor, has_next = (t.numpy() for t in model._neighbours(1))
+        predecessor, has_previous = (t.numpy() for t in model._neighbours(-1))
     finally:
         vec.close()
     n_steps, n_envs = starts.shape

@@ -179,32 +179,21 @@ class FastPPO(PPO):
         p = self.policy
         return p.action_net(p.mlp_extractor.forward_actor(self._features(obs)))
 
-    def _successors(self) -> tuple[th.Tensor, th.Tensor]:
-        """For each flat buffer index, the index of the next observation of the same env and
-        episode, and whether there is one (not at the rollout's last step, not across a
-        reset). Flat index = env x n_steps + step, as swap_and_flatten lays them out."""
+    def _neighbours(self, offset: int) -> tuple[th.Tensor, th.Tensor]:
+        """For each flat buffer index, the index of the observation ``offset`` (+1 the next, -1
+        the one before) steps away of the same env and episode, and whether there is one
+        (inside the rollout, no reset between them: the later of the two is no episode's
+        first). Flat index = env x n_steps + step, as swap_and_flatten lays them out."""
         buf = self.rollout_buffer
         n_steps, n_envs = buf.buffer_size, buf.n_envs
         n = n_steps * n_envs
-        following = np.minimum(np.arange(n) + 1, n - 1)
+        here = np.arange(n)
+        other = np.clip(here + offset, 0, n - 1)
         step = np.tile(np.arange(n_steps), n_envs)
         starts = np.asarray(buf.episode_starts).swapaxes(0, 1).reshape(-1)
-        valid = (step < n_steps - 1) & (starts[following] == 0)
-        return (th.as_tensor(following, device=self.device),
-                th.as_tensor(valid, dtype=th.float32, device=self.device))
-
-    def _predecessors(self) -> tuple[th.Tensor, th.Tensor]:
-        """For each flat buffer index, the index of the observation before it of the same env
-        and episode, and whether there is one (not at the rollout's first step, not at an
-        episode's first observation), laid out as _successors'."""
-        buf = self.rollout_buffer
-        n_steps, n_envs = buf.buffer_size, buf.n_envs
-        n = n_steps * n_envs
-        before = np.maximum(np.arange(n) - 1, 0)
-        step = np.tile(np.arange(n_steps), n_envs)
-        starts = np.asarray(buf.episode_starts).swapaxes(0, 1).reshape(-1)
-        valid = (step > 0) & (starts == 0)
-        return (th.as_tensor(before, device=self.device),
+        inside = (step + offset >= 0) & (step + offset < n_steps)
+        valid = inside & (starts[np.maximum(here, other)] == 0)
+        return (th.as_tensor(other, device=self.device),
                 th.as_tensor(valid, dtype=th.float32, device=self.device))
 
     def _caps_losses(self, mb: dict, mean: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
@@ -268,9 +257,9 @@ class FastPPO(PPO):
         pg_losses, value_losses, entropy_losses, clip_fractions = [], [], [], []
         caps_t, caps_s, caps_c = [], [], []
         if self._caps:
-            successor, has_successor = self._successors()
+            successor, has_successor = self._neighbours(1)
             if self.caps_curvature:
-                predecessor, has_predecessor = self._predecessors()
+                predecessor, has_predecessor = self._neighbours(-1)
         params = list(self.policy.parameters())
         continue_training = True
         for epoch in range(self.n_epochs):

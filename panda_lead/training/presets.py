@@ -37,9 +37,11 @@ DEPLOY_LARGE_BATCH = dict(env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nomin
 DEPLOY_LARGE_BATCH_N90 = {**DEPLOY_LARGE_BATCH,
                           "env": dict(DEPLOY_LARGE_BATCH["env"], nominal_share=0.9)}
 
-# deploy_large_batch's trained seeds continued with gSDE exploration at ~1.2 cm (issue 36)
-SDE_CONTINUED = dict(init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", use_sde=True,
-                     log_std_init=-3.7)
+# deploy_large_batch's five trained seeds (5M steps each): what its continued presets start
+# from, seed by seed (TrainConfig.init_from)
+LARGE_BATCH_SEEDS = "archive/seeds/deploy_large_batch_5m_s{seed}.zip"
+# ... continued with gSDE exploration at ~1.2 cm (issue 36)
+SDE_CONTINUED = dict(init_from=LARGE_BATCH_SEEDS, use_sde=True, log_std_init=-3.7)
 
 
 def _limit_lead(w_limit: float) -> dict:
@@ -336,7 +338,7 @@ PRESETS.update([
     _preset("deploy_large_batch_continued", "deploy_large_batch started from its own trained "
             "seed (deploy_large_batch_5m_s<seed>: 5M steps before this run's): the control of "
             "deploy_large_batch_from_headline (25-D)", **DEPLOY_LARGE_BATCH,
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
+            init_from=LARGE_BATCH_SEEDS),
     # ... with the limit term (w_limit): the 10M-step lead is accepted by the arm on 3 points
     # fewer trajectories than the analytic lead at 10 and 30 ms of latency, all of it the
     # joint-2 acceleration; on the paths near the limits (worst margin 0.5-1.5) its commanded
@@ -345,7 +347,7 @@ PRESETS.update([
     _preset("deploy_large_batch_limit_continued", "deploy_large_batch_continued with the "
             "Panda's joint acceleration limits in the reward (w_limit 0.01) (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.01)},
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
+            init_from=LARGE_BATCH_SEEDS),
     # ... with ten times the weight: at 0.01 the term cost 0.067 cm [0.022, 0.114] and moved no
     # borderline path under the limits; is the term too weak, or the wrong lever? The wrong
     # lever: two runs, stopped at 1.86M steps, went from 2.5-2.7 to 6.4-7.2 cm on the
@@ -354,7 +356,7 @@ PRESETS.update([
     _preset("deploy_large_batch_limit10_continued", "deploy_large_batch_continued with the "
             "Panda's joint acceleration limits in the reward at w_limit 0.1 (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.1)},
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip"),
+            init_from=LARGE_BATCH_SEEDS),
     # ... charged only for what the lead changes (the excess over a zero lead's goals, which
     # cancels the noisy aim's jitter) and only on paths a Panda could run at all (peak
     # acceleration <= 10 m/s^2; none faster was accepted), exploring 1.2 cm around the trained
@@ -365,11 +367,11 @@ PRESETS.update([
             "limit_lead_only), exploring 1.2 cm (log_std_init -2.5) (25-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=0.2,
                                                  limit_lead_only=True)},
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", log_std_init=-2.5),
+            init_from=LARGE_BATCH_SEEDS, log_std_init=-2.5),
     _preset("deploy_large_batch_lowstd_continued", "deploy_large_batch_continued exploring "
             "1.2 cm around the trained lead (log_std_init -2.5): the control of "
             "deploy_large_batch_limit_lead_continued (25-D)", **DEPLOY_LARGE_BATCH,
-            init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip", log_std_init=-2.5),
+            init_from=LARGE_BATCH_SEEDS, log_std_init=-2.5),
     # ... the same term explored with gSDE (TrainConfig.use_sde): white per-step noise of even
     # 0.3 cm charged -137 to -144 per feasible episode against the deterministic lead's -1.2,
     # and the pilot above only grew worse; gSDE's noise at the same std (0.08 of the bound:
@@ -395,13 +397,14 @@ PRESETS.update([
     # latency, 60% of it a ring at the end of the swing from home (deploy.py --check-from);
     # a reward term on the limits is swamped by exploration's noise, and gSDE lost latency
     # acceptance. A ring is the lead's acceleration, which the curvature term charges on the
-    # mean action itself (~0.003-0.005 per unit weight at the start of these runs, against
-    # the temporal term's 0.002-0.003 and PPO's policy loss of ~0.004). Control:
+    # mean action itself (~0.003-0.005 per unit weight at the start of the pilots, against the
+    # temporal term's 0.002-0.003 and PPO's policy loss of ~0.004: train/caps_* in the runs'
+    # TensorBoard logs, machine-local). Control:
     # deploy_large_batch_continued (same start, budget and world).
     *(_preset(f"deploy_large_batch_curv{w:g}_continued", "deploy_large_batch_continued with "
               f"the curvature term on the policy's mean action (caps_curvature {w:g}) (25-D)",
               **DEPLOY_LARGE_BATCH, caps_curvature=float(w),
-              init_from="archive/seeds/deploy_large_batch_5m_s{seed}.zip") for w in (3, 10, 30, 100)),
+              init_from=LARGE_BATCH_SEEDS) for w in (3, 10, 30, 100)),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
