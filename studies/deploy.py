@@ -37,6 +37,7 @@ known delay (controllers.make_predicting_analytic).
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -96,6 +97,12 @@ class Args:
     """With --tune-lead-filter or --tune-filter: tune on the first N selection-set trajectories
     (seeds from 5,000,000: never trained, tuned or tested on) instead of the 50 tuning seeds;
     0: the tuning seeds. More trajectories make the rule's error criterion steadier."""
+    studies: list[str] = field(default_factory=list)
+    """Two study names, A then B: every archived seed's model of each (archive/seeds/
+    <study>_s<k>.zip) joins --models, and a further table gives B minus A per condition
+    (accepted share, mean error, jerk), each study the mean over its seeds per trajectory, 95%
+    CIs by the two-level bootstrap over training seeds and trajectories (studies/runs.py
+    compare's)."""
     check_from: list[float] = field(default_factory=list)
     """Also check the arm's limits from these later times (s, each > 0.5 and < the episode):
     a third table, the share accepted by when the check starts, to see how much of a
@@ -186,6 +193,8 @@ def main(args: Args) -> None:
     for m in args.models:
         if not m.is_file():
             raise UserError(f"no model file {m}")
+    by_study = study_models(args.studies)
+    models = args.models + [m for paths in by_study.values() for m in paths]
     seeds = parse_seed_range(args.seeds)
     steps = int(round(args.duration / control_dt()))
     if args.tune_filter:
@@ -198,14 +207,16 @@ def main(args: Args) -> None:
     if any(p.exists() for p in outputs) and not args.force:
         raise UserError(f"{outputs[0]} or its figure exists; add --force to replace them")
     rows, rival_rows, window_rows, t0 = [], [], [], time.perf_counter()
+    label_of: dict[Path, str] = {}
     for cond in args.conditions:
-        ctrls = controllers_for(cond, args.models, steps, args.noisy_lead_filter_hz)
+        ctrls = controllers_for(cond, models, steps, args.noisy_lead_filter_hz)
         sets = {name: _play(c, seeds) for name, c in ctrls.items()}
         checks = {name: accepted_by_arm(rs) for name, rs in sets.items()}
         rival = next((r for r in RIVALS if r in sets), None)
-        models = list(sets)[len(sets) - len(args.models):]  # (controllers_for puts them last)
+        labels = list(sets)[len(sets) - len(models):]  # (controllers_for puts them last)
+        label_of = dict(zip(models, labels, strict=True))  # each row's name for a model
         rival_rows += [_rival_row(cond, rival, name, sets, args.bootstrap)
-                       for name in (models if rival else [])]
+                       for name in (labels if rival else [])]
         for name, rs in sets.items():
             rows.append(_row(cond, name, sets["Analytic"], rs, checks["Analytic"],
                              checks[name], args.bootstrap))
@@ -222,7 +233,8 @@ def main(args: Args) -> None:
         del sets
     from panda_lead.atomicio import atomic_write
 
-    text = table(args, rows, seeds) + rival_table(rival_rows) + window_table(window_rows)
+    text = (table(args, rows, seeds) + rival_table(rival_rows)
+            + study_table(rows, by_study, label_of, args.bootstrap) + window_table(window_rows))
     args.out.mkdir(parents=True, exist_ok=True)
     with atomic_write(outputs[0], ".tmp.md") as tmp:
         Path(tmp).write_text(text)
@@ -248,7 +260,10 @@ def _row(cond: str, name: str, analytic: dict, rollouts: dict, checks_a: dict, c
     for s in cmp.seeds:
         hit[checks[s].worst_limit] = hit.get(checks[s].worst_limit, 0) + 1
     errs = [cmp.metrics_b[s]["mean_err"] for s in cmp.seeds]
-    return {"cond": cond, "name": name, "err": cmp.row("mean_err"),
+    # per trajectory, in cmp.seeds' order (every seed, failures charged): what study_table pairs
+    per_traj = {"accepted": ok, "mean_err": np.array(errs),
+                "jerk_rms": np.array([cmp.metrics_b[s]["jerk_rms"] for s in cmp.seeds])}
+    return {"cond": cond, "name": name, "per_traj": per_traj, "err": cmp.row("mean_err"),
             "err_ci": bootstrap_ci(errs, n_boot=n_boot),
             "settled": cmp.row("settled_err"), "jerk": cmp.row("jerk_rms"),
             "share": float(ok.mean()), "share_ci": bootstrap_ci(ok, n_boot=n_boot),
@@ -326,6 +341,69 @@ def rival_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def study_models(studies: list[str]) -> dict[str, list[Path]]:
+    """--studies A B -> each study's archived seeds' models in seed order (none: {})."""
+    from runs import SEEDS_DIR
+
+    if not studies:
+        return {}
+    if len(studies) != 2 or studies[0] == studies[1]:
+        raise UserError(f"--studies takes two different study names, A then B (got "
+                        f"{' '.join(studies) or 'none'})")
+    out = {}
+    for study in studies:
+        found = {int(m.group(1)): p for p in SEEDS_DIR.glob(f"{study}_s*.zip")
+                 if (m := re.fullmatch(re.escape(study) + r"_s(\d+)\.zip", p.name))}
+        if len(found) < 2:
+            raise UserError(f"--studies {study}: {len(found)} archived seed model(s) in "
+                            f"{SEEDS_DIR}/{study}_s<k>.zip; a study needs at least 2 "
+                            "(`uv run studies/runs.py keep` archives them)")
+        out[study] = [found[k] for k in sorted(found)]
+    return out
+
+
+STUDY_METRICS = (("accepted", "accepted (points)", 100.0, ".1f"),
+                 ("mean_err", "mean error (cm)", 1.0, ".3f"),
+                 ("jerk_rms", "jerk (m/s^3)", 1.0, ".0f"))
+
+
+def study_table(rows: list[dict], by_study: dict[str, list[Path]], label: dict[Path, str],
+                n_boot: int) -> str:
+    """B minus A per condition, each study the mean over its seeds per trajectory, with
+    metrics.two_level_bootstrap's CIs and the findings rule over the condition's three
+    metrics (Holm), as studies/runs.py compare."""
+    from panda_lead.metrics import bootstrap_verdicts, two_level_bootstrap
+
+    if not by_study:
+        return ""
+    (a, paths_a), (b, paths_b) = by_study.items()
+    lines = ["", f"Between studies: `{b}` ({len(paths_b)} seeds) minus `{a}` ({len(paths_a)} "
+             "seeds), each the mean over its seeds per trajectory, under the same condition; "
+             "95% CI: two-level bootstrap over training seeds and trajectories "
+             f"({n_boot} resamples; the findings rule, Holm over each row's three):", "",
+             f"| condition | accepted {a} | accepted {b} | "
+             + " | ".join(f"{title}, B - A" for _, title, _, _ in STUDY_METRICS) + " |",
+             "|---|---|---|" + "---|" * len(STUDY_METRICS)]
+    rng = np.random.default_rng(0)
+    for cond in dict.fromkeys(r["cond"] for r in rows):
+        per = {r["name"]: r["per_traj"] for r in rows if r["cond"] == cond}
+        cells, cis, boots = [], [], []
+        for key, _, scale, fmt in STUDY_METRICS:
+            va = scale * np.array([per[label[p]][key] for p in paths_a])  # (seeds, traj)
+            vb = scale * np.array([per[label[p]][key] for p in paths_b])
+            ci, resampled = two_level_bootstrap(va, vb, n_boot, rng)
+            cis.append(ci)
+            boots.append(resampled)
+            cells.append((vb.mean() - va.mean(), ci, fmt))
+            if key == "accepted":
+                shares = f"{va.mean():.1f}% | {vb.mean():.1f}%"
+        verdicts = bootstrap_verdicts(cis, boots, len(next(iter(per.values()))["accepted"]))
+        diffs = " | ".join(f"{d:+{fmt}} [{lo:+{fmt}}, {hi:+{fmt}}] {v}"
+                           for (d, (lo, hi), fmt), v in zip(cells, verdicts, strict=True))
+        lines.append(f"| {LABELS[cond]} | {shares} | {diffs} |")
+    return "\n".join(lines) + "\n"
+
+
 def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
     from panda_lead.metrics import diff_text, row_diff
 
@@ -334,6 +412,8 @@ def table(args: Args, rows: list[dict], seeds: list[int]) -> str:
         f" --conditions {' '.join(args.conditions)}"
     if args.noisy_lead_filter_hz is not None:
         extra += f" --noisy-lead-filter-hz {args.noisy_lead_filter_hz:g}"
+    if args.studies:
+        extra += f" --studies {' '.join(args.studies)}"
     if args.check_from:
         extra += f" --check-from {' '.join(f'{t:g}' for t in args.check_from)}"
     lines = [f"`uv run studies/deploy.py{models} --seeds {args.seeds}{extra}` "

@@ -101,6 +101,16 @@ def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS,
                  *conditions, *extra, "--out", "{dir}"), tuple(models), section="all")
 
 
+def _deploy_studies(a: str, b: str, out_dir: str, conditions: tuple[str, ...],
+                    seeds: str, *extra: str) -> Step:
+    """studies/deploy.py --studies A B: both studies' five seeds' rows and B minus A, each
+    the mean over its seeds (two-level bootstrap)."""
+    models = tuple(f"archive/seeds/{st}_s{k}.zip" for st in (a, b) for k in range(1, 6))
+    return Step((f"{out_dir}/deploy.md", f"{out_dir}/deploy.png"),
+                ("studies/deploy.py", "--studies", a, b, "--seeds", seeds, "--conditions",
+                 *conditions, *extra, "--out", "{dir}"), models, section="all")
+
+
 def _five_seeds(study: str, against: str) -> list[Step]:
     """A five-seed study's spread, its comparison with another study (paired per trajectory)
     and every seed's deployability rows (results/studies/<study>/)."""
@@ -382,26 +392,25 @@ def table_steps() -> list[Step]:
     steps += _five_seeds("deploy_large_batch_limit_continued_5m", cont)
     # ... exploring with gSDE instead of a fresh Gaussian each step (the same start and
     # budget), and with the limit term on what the lead adds (limit_lead_only) on top of it:
-    # against each other, and all ten seeds' acceptance on the 1,000 test seeds
+    # against each other, and all ten seeds' acceptance on the 1,000 test seeds (the two
+    # studies paired: each the mean over its seeds)
     sde, light = ("deploy_large_batch_sde_continued_5m",
                   "deploy_large_batch_limit_lead_sde_light_continued_5m")
     steps += _five_seeds(sde, cont) + _five_seeds(light, sde)
-    steps.append(_deploy([f"{a}seeds/{st}_s{k}.zip" for st in (light, sde) for k in range(1, 6)],
-                         f"results/studies/{light}/test1000", ("none", "delay1", "delay3"),
-                         "0-999", "--check-from", "0.75"))
+    steps.append(_deploy_studies(sde, light, f"results/studies/{light}/test1000",
+                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
     # ... the curvature term on the policy's mean action (caps_curvature), from the same start
     # and budget: the pilots' weights on 500 selection seeds (training seed 2, the hardware
     # model's; never a test seed), then weight 10's five seeds against their control and all
-    # ten seeds' acceptance on the 1,000 test seeds
+    # ten seeds' acceptance on the 1,000 test seeds (the two studies paired)
     curv = "deploy_large_batch_curv10_continued_5m"
     pilots = [f"{a}seeds/{cont}_s2.zip", *(f"{a}seeds/deploy_large_batch_curv{w}_continued_5m_s2.zip"
                                            for w in (3, 10, 30, 100))]
     steps.append(_deploy(pilots, f"results/studies/{curv}/pilots_selection500",
                          ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
     steps += _five_seeds(curv, cont)
-    steps.append(_deploy([f"{a}seeds/{st}_s{k}.zip" for st in (curv, cont) for k in range(1, 6)],
-                         f"results/studies/{curv}/test1000", ("none", "delay1", "delay3"),
-                         "0-999", "--check-from", "0.75"))
+    steps.append(_deploy_studies(cont, curv, f"results/studies/{curv}/test1000",
+                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
     # on all 1,000 test seeds, the noise rows against the filtered rival

@@ -286,15 +286,13 @@ def load_baseline(name: str) -> dict:
 
 
 def compare_studies(args: Args) -> None:
-    """Two configurations, each over its training seeds, paired by test trajectory. The CI is a
-    two-level bootstrap: each resample draws the training seeds of both studies and the test
-    trajectories with replacement, so it carries the spread across training seeds as well as
-    across trajectories (a CI over trajectories alone would call a lucky seed a finding)."""
+    """Two configurations, each over its training seeds, paired by test trajectory; the CI is
+    metrics.two_level_bootstrap's (training seeds and trajectories resampled)."""
     if not args.against_study:
         raise UserError("compare needs --against-study NAME")
     a, b = _study_or_baseline(args.against_study), _study_or_baseline(args.study)
     same_test_seeds(a + b, f"--study {args.study} against --against-study {args.against_study}")
-    from panda_lead.metrics import bootstrap_verdicts
+    from panda_lead.metrics import bootstrap_verdicts, two_level_bootstrap
 
     rng = np.random.default_rng(0)
     lines, cis, resamples = [], [], []
@@ -304,12 +302,7 @@ def compare_studies(args: Args) -> None:
         mb = np.array([s["test"][key] for s in b])
         d = mb.mean(axis=0) - ma.mean(axis=0)
         n = d.size
-        boots = np.empty(args.bootstrap)
-        for i in range(args.bootstrap):
-            t = rng.integers(0, n, n)
-            sa, sb = rng.integers(0, len(a), len(a)), rng.integers(0, len(b), len(b))
-            boots[i] = mb[sb][:, t].mean() - ma[sa][:, t].mean()
-        lo, hi = np.percentile(boots, [2.5, 97.5])
+        (lo, hi), boots = two_level_bootstrap(ma, mb, args.bootstrap, rng)
         cis.append((lo, hi))
         resamples.append(boots)
         lines.append(f"| {name} | {ma.mean():.3f} | {mb.mean():.3f} | {d.mean():+.3f} "

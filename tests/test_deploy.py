@@ -4,6 +4,7 @@ a Kalman filter under noise, and the analytic lead that predicts through a known
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -725,3 +726,57 @@ def test_deploy_compares_each_model_with_the_rival_its_condition_calls_for(tiny_
     label = "tiny + lead low-pass 10 Hz under noise"
     assert rows == [["| noise 1 cm", label, "Analytic+filter"],
                     ["| latency 1 step (10 ms)", label, "Analytic+predict"]]
+
+
+def test_deploy_compares_two_studies_over_their_seeds(tiny_run, tmp_path, monkeypatch):
+    """--studies A B: each study's archived seeds join the rows, and a table gives B minus A
+    per condition, each study the mean over its seeds: the shares and the error difference
+    agree with the per-seed rows of the main table. A study with fewer than two archived
+    seeds, or the same study twice, is one line and exit 2, nothing written."""
+    import shutil
+
+    deploy = _deploy_module()
+    tmp, _, _, _ = tiny_run
+    seeds = tmp_path / "archive" / "seeds"
+    seeds.mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    # study a: the archived model twice; study b: it once and once adopted with half its lead
+    # bound, so that the two studies differ (the adoption's quick test on two seeds)
+    from panda_lead import adopt, seeds as seed_sets
+
+    monkeypatch.setattr(seed_sets, "QUICK_TEST_SEEDS", (0, 1))
+    tiny = tmp / "archive" / "tiny"
+    half = adopt.adopt(tiny.with_suffix(".zip"), "half",
+                       {"max_lead": json.loads(tiny.with_suffix(".json").read_text())[
+                           "env_config"]["max_lead"] / 2}, log=lambda *_: None).with_suffix("")
+    for name, src in (("a_s1", tiny), ("a_s2", tiny), ("b_s1", half), ("b_s2", tiny)):
+        for ext in (".zip", ".json"):
+            shutil.copy(src.with_suffix(ext), (seeds / name).with_suffix(ext))
+    args = deploy.Args(studies=["a", "b"], seeds="0-3", conditions=["none", "delay1"],
+                       out=tmp_path / "out", bootstrap=200, duration=0.8)
+    deploy.main(args)
+    text = (tmp_path / "out" / "deploy.md").read_text()
+    assert "--studies a b`" in text.splitlines()[0]
+    main, between = text.split("Against the rival")[0], text.split("Between studies")[1]
+    for cond in ("no delay, no noise", "latency 1 step (10 ms)"):
+        cells = {line.split(" | ")[1]: line.split(" | ") for line in main.splitlines()
+                 if line.startswith(f"| {cond} |")}
+        assert set(cells) >= {"a_s1", "a_s2", "b_s1", "b_s2"}
+        share = {k: float(c[9].split("%")[0]) for k, c in cells.items()}
+        error = {k: float(c[2]) for k, c in cells.items()}
+        (row,) = [line.split(" | ") for line in between.splitlines()
+                  if line.startswith(f"| {cond} |")]
+        assert float(row[1].rstrip("%")) == pytest.approx((share["a_s1"] + share["a_s2"]) / 2,
+                                                          abs=0.06)
+        assert float(row[2].rstrip("%")) == pytest.approx((share["b_s1"] + share["b_s2"]) / 2,
+                                                          abs=0.06)
+        want = (error["b_s1"] + error["b_s2"] - error["a_s1"] - error["a_s2"]) / 2
+        assert want and float(row[4].split()[0]) == pytest.approx(want, abs=0.006)
+        assert "[" in row[3] and ("shown" in row[4] or "not shown" in row[4])
+    for studies, words in ((["a"], "two different study names"),
+                           (["a", "a"], "two different study names"),
+                           (["a", "c"], "--studies c: 0 archived seed model(s)")):
+        with pytest.raises(SystemExit) as exc:
+            deploy.main(deploy.Args(studies=studies, out=tmp_path / "bad"))
+        assert exc.value.code == 2
+    assert not (tmp_path / "bad").exists()

@@ -14,7 +14,6 @@ from panda_lead import seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 
-
 def _load(name: str):
     sys.path.insert(0, str(ROOT / "studies"))
     spec = importlib.util.spec_from_file_location(f"_test_{name}",
@@ -23,7 +22,6 @@ def _load(name: str):
     sys.modules[spec.name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
     return module
-
 
 def test_the_selection_set_is_disjoint_from_training_tuning_test_and_every_other_set():
     select = set(seeds.SELECT_SEEDS)
@@ -36,7 +34,6 @@ def test_the_selection_set_is_disjoint_from_training_tuning_test_and_every_other
     # training draws its trajectory seeds from [TRAIN_SEED_LOW, TRAIN_SEED_HIGH)
     assert max(select) < seeds.TRAIN_SEED_LOW
 
-
 def test_the_size_grows_with_the_square_of_the_spread():
     selection = _load("selection")
     # (1.96 + 0.84)^2 = 7.85: a 0.05 cm spread needs 8 trajectories, ten times it 100 times more
@@ -45,7 +42,6 @@ def test_the_size_grows_with_the_square_of_the_spread():
     # and at that size a 0.05 cm difference is 2.8 standard errors from 0
     n = selection.size_for(0.5)
     assert 0.05 / (0.5 / np.sqrt(n)) >= 2.8
-
 
 def test_tied_studies_rank_the_smoother_first_separated_ones_by_error():
     runs = _load("runs")
@@ -64,6 +60,42 @@ def test_tied_studies_rank_the_smoother_first_separated_ones_by_error():
     assert [n for n, _ in runs.tie_ranked(errors, jerks, n_boot=2000)] == ["rough", "smooth",
                                                                           "worse"]
 
+def test_a_chain_of_ties_never_puts_a_study_above_one_clearly_better():
+    """Ties are not transitive (A ~ B and B ~ C while C is clearly behind A). The rule only
+    swaps two tied neighbours, the smoother up, so in the final order every pair ranked against
+    its means is itself tied with the smoother above: never one the CI separates."""
+    from panda_lead.metrics.stats import paired_ci
+
+    runs = _load("runs")
+    rng = np.random.default_rng(1)
+
+    def near(base: np.ndarray, mean: float) -> np.ndarray:  # the base + noise, at this mean
+        x = base + rng.normal(0.0, 0.2, len(base))
+        return x - x.mean() + base.mean() + mean
+
+    inverted = 0
+    for _ in range(4):
+        base = rng.normal(2.0, 0.5, 300)
+        # six studies 0.015 cm apart (CI half-width ~0.03): neighbours tie, far ones do not
+        errors = {f"s{k}": near(base, 0.015 * k) for k in range(6)}
+        jerks = {name: float(rng.uniform(100, 1000)) for name in errors}
+        order = [name for name, _ in runs.tie_ranked(errors, jerks, n_boot=500)]
+        for i, upper in enumerate(order):
+            for lower in order[i + 1:]:
+                if errors[lower].mean() < errors[upper].mean():
+                    inverted += 1
+                    lo, hi = paired_ci(errors[lower] - errors[upper], 500, 0)
+                    assert lo <= 0.0 <= hi and jerks[upper] < jerks[lower], (upper, lower)
+    assert inverted  # the draws do rank some studies against their means
+    # the chain itself: a ~ b, b ~ c, c clearly behind a and the smoothest: c stays behind a
+    base = rng.normal(2.0, 0.5, 300)
+    errors = {"a": near(base, 0.0), "b": near(base, 0.02), "c": near(base, 0.04)}
+    assert paired_ci(errors["c"] - errors["a"], 500, 0)[0] > 0
+    assert paired_ci(errors["b"] - errors["a"], 500, 0)[0] < 0
+    assert paired_ci(errors["c"] - errors["b"], 500, 0)[0] < 0
+    order = [n for n, _ in runs.tie_ranked(errors, {"a": 900.0, "b": 500.0, "c": 100.0},
+                                           n_boot=500)]
+    assert order.index("a") < order.index("c")
 
 def test_a_model_that_knows_the_path_is_never_ranked_with_causal_ones(tmp_path, monkeypatch,
                                                                       capsys):
@@ -89,7 +121,6 @@ def test_a_model_that_knows_the_path_is_never_ranked_with_causal_ones(tmp_path, 
     assert "ahead" not in causal
     assert "| 1 | ahead |" in preview
     assert "causal_a" not in preview and "causal_b" not in preview
-
 
 def test_the_rank_tells_an_unscored_kept_seed_from_a_study_with_too_few_seeds(tmp_path,
                                                                               monkeypatch,
@@ -120,7 +151,6 @@ def test_the_rank_tells_an_unscored_kept_seed_from_a_study_with_too_few_seeds(tm
     few = next(line for line in out.splitlines() if line.startswith("Scored, fewer than 3"))
     assert "beta" in unscored and "alpha" not in unscored
     assert "alpha" in few and "beta" not in few
-
 
 def test_choose_by_selection_takes_the_rules_first_seed_and_refuses_a_stale_score(
         tmp_path, monkeypatch):
@@ -158,7 +188,6 @@ def test_choose_by_selection_takes_the_rules_first_seed_and_refuses_a_stale_scor
     with pytest.raises(UserError, match="not: st_s3"):
         runs.choose_by_selection("st", seeds_, scores)
 
-
 def test_the_rank_counts_a_warm_started_models_starting_steps(tmp_path, monkeypatch):
     """A model trained on top of another (train.py --init-from) shows both budgets, so that a
     10M-step study is not read as a 5M one beside the rest."""
@@ -177,7 +206,6 @@ def test_the_rank_counts_a_warm_started_models_starting_steps(tmp_path, monkeypa
     assert selection._budget({"model": "archive/warm.zip"}) == "5M + 2.5M"
     assert selection._budget({"model": "archive/lost.zip"}) == "? + 1M"
     assert selection._budget({"model": "archive/absent.zip"}) == ""
-
 
 def test_a_table_names_the_set_its_seeds_come_from():
     """deploy.py's tables say which set they played (a table on selection seeds once called

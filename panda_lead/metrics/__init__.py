@@ -36,5 +36,6 @@ from .stats import (  # noqa: F401
     shown,
     sign_test_p,
     summarize,
+    two_level_bootstrap,
     wilcoxon_p,
 )
