@@ -2,6 +2,8 @@
 
     uv run studies/deploy.py --models archive/v5_err_decay_s4.zip archive/delayed_5m.zip \\
         --seeds 0-499
+    uv run studies/deploy.py --studies deploy_large_batch_continued_5m \\
+        deploy_large_batch_curv10_continued_5m --seeds 0-999 --conditions none delay1
 
 Every controller plays the test seeds under each condition (rows): no delay; 1 and 3 control
 steps of latency; 1 and 2 cm of observation noise. Per controller and condition: mean, median
@@ -11,7 +13,9 @@ against the published joint and tip limits, after the first 0.5 s swing from hom
 of trajectories accepted and the median worst margin. Paired differences against the analytic
 lead under the same condition come from panda_lead.metrics.compare (95% bootstrap CIs).
 Writes <out>/deploy.md and <out>/deploy.png (error against jerk, one point per controller per
-condition: the Pareto picture).
+condition: the Pareto picture). With --studies A B, every archived seed of both studies plays
+too, and a table gives B minus A per condition, each study the mean over its seeds per
+trajectory (CIs: metrics.two_level_bootstrap, training seeds and trajectories resampled).
 
 The conditions (docs/deploy.md says what each means physically):
 - latency k: the lead's channel is k control steps late both ways (its observation and the
