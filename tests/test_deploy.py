@@ -728,7 +728,8 @@ def test_deploy_compares_each_model_with_the_rival_its_condition_calls_for(tiny_
                     ["| latency 1 step (10 ms)", label, "Analytic+predict"]]
 
 
-def test_deploy_compares_two_studies_over_their_seeds(tiny_run, tmp_path, monkeypatch):
+def test_deploy_compares_two_studies_over_their_seeds(tiny_run, tmp_path, monkeypatch,
+                                                     capsys):
     """--studies A B: each study's archived seeds join the rows, and a table gives B minus A
     per condition, each study the mean over its seeds: the shares and the error difference
     agree with the per-seed rows of the main table. A study with fewer than two archived
@@ -742,7 +743,8 @@ def test_deploy_compares_two_studies_over_their_seeds(tiny_run, tmp_path, monkey
     monkeypatch.chdir(tmp_path)
     # study a: the archived model twice; study b: it once and once adopted with half its lead
     # bound, so that the two studies differ (the adoption's quick test on two seeds)
-    from panda_lead import adopt, seeds as seed_sets
+    from panda_lead import adopt
+    from panda_lead import seeds as seed_sets
 
     monkeypatch.setattr(seed_sets, "QUICK_TEST_SEEDS", (0, 1))
     tiny = tmp / "archive" / "tiny"
@@ -776,7 +778,9 @@ def test_deploy_compares_two_studies_over_their_seeds(tiny_run, tmp_path, monkey
     for studies, words in ((["a"], "two different study names"),
                            (["a", "a"], "two different study names"),
                            (["a", "c"], "--studies c: 0 archived seed model(s)")):
+        capsys.readouterr()
         with pytest.raises(SystemExit) as exc:
             deploy.main(deploy.Args(studies=studies, out=tmp_path / "bad"))
         assert exc.value.code == 2
+        assert words in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()

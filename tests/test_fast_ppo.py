@@ -222,11 +222,15 @@ def test_a_run_is_bit_reproducible_and_the_same_as_sb3s_update(tmp_path):
 # the default), on they pair each observation with the next one of its episode and shape the
 # policy's mean action.
 
-def _caps_model(**caps):
+def _caps_model(env: dict | None = None, **caps):
     """A model whose collected rollout spans an episode's end: 30-step episodes, 64 steps."""
+    from panda_lead.config import EnvConfig
+
     torch.set_num_threads(1)
-    vec = make_vec_env({"episode_steps": 30}, 3, 0, "batched", 1)
-    config = TrainConfig(n_envs=3, n_steps=64, batch_size=64, n_epochs=3, seed=3, **caps)
+    env = EnvConfig(**{"episode_steps": 30, **(env or {})})
+    vec = make_vec_env(env, 3, 0, "batched", 1)
+    config = TrainConfig(env=env, n_envs=3, n_steps=64, batch_size=64, n_epochs=3, seed=3,
+                         **caps)
     model = build_ppo(config, vec)
     model.learn(64 * 3)  # one rollout and update, then a fresh rollout (unflattened)
     from stable_baselines3.common.callbacks import CallbackList
@@ -310,6 +314,51 @@ def test_caps_terms_make_the_policy_smoother_than_ppo_alone(term):
     assert results[1e4][1][f"train/caps_{term}"] > 0
 
 
+def test_the_curvature_weight_can_differ_in_episodes_with_latency():
+    """caps_curvature_delayed: the installation feature's delays tell the update which
+    observations belong to an episode with latency. On a rollout holding both kinds, the term
+    the loss adds is each observation's squared second difference (computed here from the
+    unflattened rollout, episode by episode) times its episode's weight: latency's weight
+    alone counts those episodes only, and equal weights give the one-weight term."""
+    from panda_lead.config import OBS_15
+
+    world = dict(obs_features=OBS_15 + ("installation",), obs_delay=3, action_delay=3,
+                 target_delay=3, random_delay=True, nominal_share=0.5)
+    model, vec = _caps_model(world, caps_curvature_delayed=0.0)
+    try:
+        buf = model.rollout_buffer
+        obs = np.array(buf.observations).swapaxes(0, 1)  # (envs, steps, dim), before flattening
+        starts = np.array(buf.episode_starts).swapaxes(0, 1)
+        with torch.no_grad():
+            mean = model._mean_action(torch.as_tensor(obs.reshape(-1, obs.shape[-1])))
+            mean = mean.reshape(obs.shape[0], obs.shape[1], -1)
+            second = ((mean[:, 2:] - 2 * mean[:, 1:-1] + mean[:, :-2]) ** 2).mean(dim=-1)
+            keep = starts[:, 1:] == 0
+            both = keep[:, 1:] & keep[:, :-1]  # the three in one episode
+            delayed = np.abs(obs[:, 1:-1, [15, 16, 17]]).sum(axis=-1) > 0
+            assert 0 < (both & delayed).sum() < both.sum()  # both kinds in the rollout
+            per = second.numpy() * both
+            flat = model._flat_tensors()
+            successor, has_next = model._neighbours(1)
+            predecessor, has_previous = model._neighbours(-1)
+            mb = {"observations": flat["observations"], "has_next": has_next,
+                  "next_observations": flat["observations"][successor],
+                  "has_previous": has_previous,
+                  "previous_observations": flat["observations"][predecessor]}
+            terms = {}
+            for weights in ((0.0, 7.0), (7.0, 7.0), (2.0, 7.0)):  # (the rest, with latency)
+                model.caps_curvature, model.caps_curvature_delayed = weights
+                mean_flat = model._mean_action(mb["observations"])
+                terms[weights] = model._caps_losses(mb, mean_flat)[2:]
+    finally:
+        vec.close()
+    count = both.sum()
+    for (rest, late), (curvature, weighted) in terms.items():
+        assert float(curvature) == pytest.approx(per.sum() / count, rel=1e-4)
+        want = (late * per[delayed].sum() + rest * per[~delayed].sum()) / count
+        assert float(weighted) == pytest.approx(want, rel=1e-4)
+
+
 def test_caps_needs_the_fast_update_and_sane_weights():
     from panda_lead.errors import UserError
 
@@ -321,6 +370,10 @@ def test_caps_needs_the_fast_update_and_sane_weights():
                 dict(caps_sigma=0.0), dict(caps_curvature=-0.5)):
         with pytest.raises(UserError, match="caps"):
             TrainConfig(**bad)
+    with pytest.raises(UserError, match="installation feature"):
+        TrainConfig(caps_curvature_delayed=10.0)  # no installation: no latency to see
+    with pytest.raises(UserError, match="caps-curvature-delayed must be"):
+        TrainConfig(caps_curvature_delayed=float("inf"))
 
 
 def test_caps_outside_the_fast_path_is_an_error_not_a_silent_drop():

@@ -88,6 +88,11 @@ class TrainConfig:
     the mean squared second difference of the policy's mean action over three consecutive
     observations of an episode: the lead's acceleration, where a first difference (CAPS's
     temporal term) also charges the lead's slow changes. 0: off."""
+    caps_curvature_delayed: float | None = None
+    """The curvature weight in the episodes with latency (any of the installation feature's
+    three delays non-zero; the observation must hold ``installation``), caps_curvature in the
+    rest: the calm a delayed loop needs without charging the precise one. None: caps_curvature
+    everywhere."""
     caps_sigma: float = 0.05
     """Standard deviation of the spatial term's observation noise, in observation units (each
     feature divided by its config.OBS_SCALE: 0.05 is 5 cm on a position, 2.5 mm on the tip
@@ -180,8 +185,17 @@ class TrainConfig:
                             f"placeholder), got {self.init_from!r}")
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
+        if self.caps_curvature_delayed is not None:
+            v = self.caps_curvature_delayed
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise UserError(f"--caps-curvature-delayed must be a finite number >= 0, got "
+                                f"{v!r}")
+            if "installation" not in self.env.obs_features:
+                raise UserError("--caps-curvature-delayed needs the installation feature in "
+                                "the observation (--env.obs-features ... installation): it "
+                                "tells the update which episodes have latency")
         if (self.caps_temporal or self.caps_spatial or self.caps_curvature
-                ) and not self.fast_update:
+                or self.caps_curvature_delayed) and not self.fast_update:
             raise UserError("--caps-temporal, --caps-spatial and --caps-curvature need the fast "
                             "update (FastPPO): drop --no-fast-update")
         if self.lr_schedule not in ("constant", "linear"):

@@ -43,6 +43,8 @@ the one before and the one after it in the same episode (the lead's acceleration
 a Panda's joint acceleration limits see). For a sinusoid at f the squared second difference is
 (2 sin(pi f dt))^2 times the squared first one: 0.06 at 4 Hz, 0.19 at 7 Hz (dt 10 ms), so
 against the first difference it charges a 7 Hz ring 3x more than a 4 Hz swing of the lead.
+``caps_curvature_delayed`` gives the curvature term another weight in the episodes with
+latency, found by the observation's installation feature (its three delays).
 """
 
 from __future__ import annotations
@@ -126,16 +128,25 @@ class FastPPO(PPO):
 
     def __init__(self, *args, update_threads: int | None = None, caps_temporal: float = 0.0,
                  caps_spatial: float = 0.0, caps_sigma: float = 0.05,
-                 caps_curvature: float = 0.0, **kwargs):
+                 caps_curvature: float = 0.0, caps_curvature_delayed: float | None = None,
+                 delay_columns: tuple[int, ...] = (), **kwargs):
         self.update_threads = update_threads
         self.caps_temporal, self.caps_spatial, self.caps_sigma = (caps_temporal, caps_spatial,
                                                                   caps_sigma)
         self.caps_curvature = caps_curvature
+        # the weight in episodes with latency, found by the observation's delay columns
+        if caps_curvature_delayed is not None and not delay_columns:
+            raise ValueError("caps_curvature_delayed needs the observation's delay columns")
+        self.caps_curvature_delayed, self.delay_columns = caps_curvature_delayed, delay_columns
         super().__init__(*args, **kwargs)
 
     @property
     def _caps(self) -> bool:
-        return bool(self.caps_temporal or self.caps_spatial or self.caps_curvature)
+        return bool(self.caps_temporal or self.caps_spatial or self._curvature)
+
+    @property
+    def _curvature(self) -> bool:
+        return bool(self.caps_curvature or self.caps_curvature_delayed)
 
     def _fast_path_applies(self) -> bool:
         p = self.policy
@@ -196,14 +207,17 @@ class FastPPO(PPO):
         return (th.as_tensor(other, device=self.device),
                 th.as_tensor(valid, dtype=th.float32, device=self.device))
 
-    def _caps_losses(self, mb: dict, mean: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    def _caps_losses(self, mb: dict, mean: th.Tensor
+                     ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
         """CAPS's temporal and spatial terms and the curvature term for one minibatch: mean
         squared (first or second) differences of the mean action, per action dimension (zero
-        when the weight is 0)."""
+        when the weight is 0); last, the curvature term weighted per observation (the weight
+        of its episode: caps_curvature, or caps_curvature_delayed where the episode has
+        latency), what the loss adds."""
         zero = mean.new_zeros(())
-        temporal = spatial = curvature = zero
+        temporal = spatial = curvature = weighted = zero
         has_next = mb["has_next"]
-        if self.caps_temporal or self.caps_curvature:
+        if self.caps_temporal or self._curvature:
             following = self._mean_action(mb["next_observations"])
         if self.caps_temporal:
             diff = ((mean - following) ** 2).mean(dim=1)
@@ -211,11 +225,19 @@ class FastPPO(PPO):
         if self.caps_spatial:
             noisy = mb["observations"] + self.caps_sigma * th.randn_like(mb["observations"])
             spatial = ((mean - self._mean_action(noisy)) ** 2).mean()
-        if self.caps_curvature:
+        if self._curvature:
             both = has_next * mb["has_previous"]
             second = following - 2 * mean + self._mean_action(mb["previous_observations"])
-            curvature = ((second ** 2).mean(dim=1) * both).sum() / both.sum().clamp(min=1.0)
-        return temporal, spatial, curvature
+            per = (second ** 2).mean(dim=1) * both
+            count = both.sum().clamp(min=1.0)
+            curvature = per.sum() / count
+            if self.caps_curvature_delayed is None:  # (the one weight: as it was written first)
+                weighted = self.caps_curvature * curvature
+            else:
+                delayed = mb["observations"][:, list(self.delay_columns)].abs().sum(dim=1) > 0
+                weight = th.where(delayed, self.caps_curvature_delayed, self.caps_curvature)
+                weighted = (weight * per).sum() / count
+        return temporal, spatial, curvature, weighted
 
     def _flat_tensors(self) -> dict[str, th.Tensor]:
         """The buffer's arrays flattened as RolloutBuffer.get flattens them (in place, once per
@@ -258,7 +280,7 @@ class FastPPO(PPO):
         caps_t, caps_s, caps_c = [], [], []
         if self._caps:
             successor, has_successor = self._neighbours(1)
-            if self.caps_curvature:
+            if self._curvature:
                 predecessor, has_predecessor = self._neighbours(-1)
         params = list(self.policy.parameters())
         continue_training = True
@@ -270,7 +292,7 @@ class FastPPO(PPO):
             if self._caps:
                 epoch_data["next_observations"] = flat["observations"][successor[order]]
                 epoch_data["has_next"] = has_successor[order]
-                if self.caps_curvature:
+                if self._curvature:
                     epoch_data["previous_observations"] = flat["observations"][
                         predecessor[order]]
                     epoch_data["has_previous"] = has_predecessor[order]
@@ -294,9 +316,9 @@ class FastPPO(PPO):
                 entropy_loss = -th.mean(entropy)
                 loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
                 if self._caps:
-                    temporal, spatial, curvature = self._caps_losses(mb, mean)
+                    temporal, spatial, curvature, weighted = self._caps_losses(mb, mean)
                     loss = (loss + self.caps_temporal * temporal + self.caps_spatial * spatial
-                            + self.caps_curvature * curvature)
+                            + weighted)
                     caps_t.append(temporal.detach())
                     caps_s.append(spatial.detach())
                     caps_c.append(curvature.detach())
@@ -326,7 +348,7 @@ class FastPPO(PPO):
         if self._caps:
             self.logger.record("train/caps_temporal", float(th.stack(caps_t).mean()) if caps_t else 0.0)
             self.logger.record("train/caps_spatial", float(th.stack(caps_s).mean()) if caps_s else 0.0)
-            if self.caps_curvature:
+            if self._curvature:
                 self.logger.record("train/caps_curvature", float(th.stack(caps_c).mean()))
 
     def _record(self, pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
@@ -359,6 +381,18 @@ def linear_schedule(start: float):
     return schedule
 
 
+def _delay_columns(config) -> tuple[int, ...]:
+    """The observation's columns holding the episode's three delays (the installation
+    feature's first three), or () without that feature."""
+    from ..config import obs_layout
+
+    env = getattr(config, "env", None)
+    for name, start, _ in obs_layout(env.obs_features) if env is not None else ():
+        if name == "installation":
+            return (start, start + 1, start + 2)
+    return ()
+
+
 def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None = None) -> PPO:
     """The PPO model a training run uses, from its TrainConfig: FastPPO when
     ``config.fast_update`` (or ``fast``) says so, else SB3's PPO as it comes."""
@@ -378,7 +412,9 @@ def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None 
         ppo.update(caps_temporal=getattr(config, "caps_temporal", 0.0),
                    caps_spatial=getattr(config, "caps_spatial", 0.0),
                    caps_sigma=getattr(config, "caps_sigma", 0.05),
-                   caps_curvature=getattr(config, "caps_curvature", 0.0))
+                   caps_curvature=getattr(config, "caps_curvature", 0.0),
+                   caps_curvature_delayed=getattr(config, "caps_curvature_delayed", None),
+                   delay_columns=_delay_columns(config))
         policy_kwargs["optimizer_kwargs"] = dict(eps=1e-5, foreach=True)  # SB3's eps for PPO
     if fast:
         return FastPPO(FastActorCriticPolicy, vec, seed=config.seed, device=config.device,

@@ -405,6 +405,15 @@ PRESETS.update([
               f"the curvature term on the policy's mean action (caps_curvature {w:g}) (25-D)",
               **DEPLOY_LARGE_BATCH, caps_curvature=float(w),
               init_from=LARGE_BATCH_SEEDS) for w in (3, 10, 30, 100)),
+    # ... weight 10 in the episodes without latency and more in those with it
+    # (caps_curvature_delayed; the policy sees which by its installation feature): on the
+    # pilots' selection trajectories weight 30 or 100 everywhere bought 13.0% acceptance at
+    # 10 ms for 0.13-0.26 cm of precision; the lost paths fail at the end of the swing from
+    # home under latency, so the calm is asked where the latency is. Control: curv10.
+    *(_preset(f"deploy_large_batch_curv10_late{w:g}_continued", "deploy_large_batch_curv10_"
+              f"continued with curvature weight {w:g} in the episodes with latency (25-D)",
+              **DEPLOY_LARGE_BATCH, caps_curvature=10.0, caps_curvature_delayed=float(w),
+              init_from=LARGE_BATCH_SEEDS) for w in (30, 100)),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
