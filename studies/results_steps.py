@@ -408,6 +408,12 @@ def table_steps() -> list[Step]:
                                            for w in (3, 10, 30, 100))]
     steps.append(_deploy(pilots, f"results/studies/{curv}/pilots_selection500",
                          ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
+    # ... weight 10 without latency and 30 or 100 with it (caps_curvature_delayed): pilots,
+    # training seed 2, beside weight 10 and 30 everywhere, on the same 500 selection seeds
+    late = [f"{a}seeds/deploy_large_batch_curv{w}_continued_5m_s2.zip" for w in (10, 30)] + [
+        f"{a}seeds/deploy_large_batch_curv10_late{w}_continued_5m_s2.zip" for w in (30, 100)]
+    steps.append(_deploy(late, f"results/studies/{curv}/late_pilots_selection500",
+                         ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
     steps += _five_seeds(curv, cont)
     steps.append(_deploy_studies(cont, curv, f"results/studies/{curv}/test1000",
                                  ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
