@@ -1,4 +1,5 @@
-"""The probes behind docs/deploy.md's explanations (tuning seeds only, never the test seeds):
+"""The probes behind docs/deploy.md's explanations (the tuning seeds, or with --on-selection N
+the first N selection-set trajectories; never the test seeds):
 what a low-pass does to the filtered rival, where the arm's limits bind on the paths near them,
 how much of the limit term a lead could change, and how much of it a PPO policy's exploration
 makes.
@@ -11,6 +12,8 @@ makes.
     uv run studies/deploy_probes.py limit-excess   # the limit term's excess per 2 s episode
     uv run studies/deploy_probes.py limit-exploration  # limit_lead_only's term, with exploration
     uv run studies/deploy_probes.py lead-excess  # what a lead adds to a zero lead's, by condition
+    uv run studies/deploy_probes.py lost-paths --models \\
+        archive/deploy_large_batch_curv10_10m_lp10.zip --on-selection 300  # where the arm rejects
 
 Each prints a few lines; about a minute each on the 2-core AMD EPYC.
 """
@@ -34,7 +37,7 @@ from panda_lead.errors import UserError, exit_on_user_error
 @dataclass
 class Args:
     probe: tyro.conf.Positional[Literal["rival-lowpass", "margins", "limit-excess",
-                                        "limit-exploration", "lead-excess"]]
+                                        "limit-exploration", "lead-excess", "lost-paths"]]
     """Which probe to run."""
     models: list[Path] = field(
         default_factory=lambda: [Path("archive/deploy_large_batch_10m.zip")])
@@ -44,6 +47,9 @@ class Args:
     """margins: the conditions (studies/deploy.py's names)."""
     lead_filter_hz: list[float] = field(default_factory=lambda: [0.0])
     """margins: a low-pass on the models' lead (EnvConfig.lead_filter_hz), one pass per value."""
+    on_selection: int = 0
+    """Play the first N selection-set trajectories (seeds from 5,000,000: never trained, tuned
+    or tested on) instead of the 50 tuning seeds; 0: the tuning seeds."""
 
 
 def rival_lowpass(steps: int, seeds: list[int]) -> None:
@@ -188,10 +194,43 @@ def lead_excess(args: Args, seeds: list[int]) -> None:
               f"{zero:.1f}, difference {lead - zero:.1f} ({len(paths)} paths)", flush=True)
 
 
+def lost_paths(args: Args, steps: int, seeds: list[int]) -> None:
+    """The paths the condition's rival (the predicting analytic lead under latency, else the
+    analytic lead) is accepted on and the first model is not, and the reverse: per lost path,
+    the limit that binds, its peak / limit and when the peak comes (s), beside the rival's."""
+    from panda_lead.core import home_qpos
+    from panda_lead.limits import JOINT_ACC, JOINT_JERK, JOINT_VEL, ROBOT_DT, command_stream, derivatives
+
+    limits = {"velocity": (0, JOINT_VEL), "acceleration": (1, JOINT_ACC), "jerk": (2, JOINT_JERK)}
+    for cond in args.conditions:
+        ctrls = controllers_for(cond, args.models[:1], steps)
+        rival, model = ("Analytic+predict" if "Analytic+predict" in ctrls else "Analytic",
+                        list(ctrls)[-1])
+        rs = {name: _play(ctrls[name], seeds) for name in (rival, model)}
+        checks = {name: accepted_by_arm(r) for name, r in rs.items()}
+        lost = [s for s in seeds if checks[rival][s].accepted and not checks[model][s].accepted]
+        gained = [s for s in seeds if checks[model][s].accepted and not checks[rival][s].accepted]
+        print(f"{cond} {model} against {rival}, {len(seeds)} paths: lost {len(lost)}, gained "
+              f"{len(gained)}", flush=True)
+        for s in lost:
+            r, c = rs[model][s], checks[model][s]
+            when = ""
+            kind = c.worst_limit.split()  # "joint 2 acceleration" or "tip jerk"
+            if kind[0] == "joint":
+                order, limit = limits[kind[2]]
+                stream = command_stream(r.q_goal, r.dt, home_qpos())
+                first = int(round((2 * r.dt + SKIP_S) / ROBOT_DT))
+                values = derivatives(stream, ROBOT_DT)[order][first:, int(kind[1]) - 1]
+                when = f" at {SKIP_S + np.argmax(np.abs(values)) * ROBOT_DT:.2f} s"
+            print(f"  {s} {r.meta.get('shape', '?')}: {c.worst_limit} {c.worst_margin:.2f}{when}"
+                  f" (rival: {checks[rival][s].worst_limit} {checks[rival][s].worst_margin:.2f})",
+                  flush=True)
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     from panda_lead.core import control_dt
-    from panda_lead.seeds import TUNE_SEEDS
+    from panda_lead.seeds import SELECT_SEEDS, TUNE_SEEDS
 
     for m in args.models:
         if not m.is_file():
@@ -199,16 +238,22 @@ def main(args: Args) -> None:
     for c in args.conditions:
         overrides(c)
     steps = int(round(5.0 / control_dt()))
+    if not 0 <= args.on_selection <= len(SELECT_SEEDS):
+        raise UserError(f"--on-selection must be 0..{len(SELECT_SEEDS)} (the selection set's "
+                        f"size), got {args.on_selection}")
+    seeds = list(SELECT_SEEDS[:args.on_selection] if args.on_selection else TUNE_SEEDS)
     if args.probe == "rival-lowpass":
-        rival_lowpass(steps, list(TUNE_SEEDS))
+        rival_lowpass(steps, seeds)
     elif args.probe == "margins":
-        margins(args, steps, list(TUNE_SEEDS))
+        margins(args, steps, seeds)
     elif args.probe == "limit-excess":
-        limit_excess(args, list(TUNE_SEEDS)[:30])
+        limit_excess(args, seeds[:30])
     elif args.probe == "limit-exploration":
-        limit_exploration(args, list(TUNE_SEEDS))
+        limit_exploration(args, seeds)
+    elif args.probe == "lost-paths":
+        lost_paths(args, steps, seeds)
     else:
-        lead_excess(args, list(TUNE_SEEDS))
+        lead_excess(args, seeds)
 
 
 if __name__ == "__main__":

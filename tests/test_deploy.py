@@ -142,7 +142,9 @@ def test_the_probes_refuse_a_missing_model_and_an_unknown_condition(tmp_path, ca
     for args, words in ((probes.Args("margins", models=[tmp_path / "absent.zip"]),
                          "no model file"),
                         (probes.Args("margins", models=[], conditions=["delay2"]),
-                         "unknown condition 'delay2'")):
+                         "unknown condition 'delay2'"),
+                        (probes.Args("lost-paths", models=[], on_selection=10 ** 7),
+                         "--on-selection must be 0..2378")):
         with pytest.raises(SystemExit) as exc:
             probes.main(args)
         assert exc.value.code == 2
