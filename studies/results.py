@@ -206,6 +206,18 @@ def save_manifest(root: Path, manifest: dict) -> None:
         Path(tmp).write_text(json.dumps(dict(sorted(manifest.items())), indent=1) + "\n")
 
 
+def save_stamps(root: Path, stamps: dict) -> None:
+    """Merge these outputs' stamps into the manifest as it is on disk now, under a lock: two
+    runs side by side (each --only its own steps) each keep the other's stamps. (Writing the
+    whole manifest read at the start once dropped a stamp the other run had added.)"""
+    from filelock import FileLock
+
+    with FileLock(str(root / "results" / ".manifest.lock")):
+        on_disk = load_manifest(root)
+        on_disk.update(stamps)
+        save_manifest(root, on_disk)
+
+
 def select(steps: list[Step], section: str, only: list[str]) -> list[Step]:
     keep = [s for s in steps if section == "all" or s.section == "tables"]
     if only:
@@ -228,10 +240,11 @@ def build(root: Path, steps: list[Step], force: bool = False, dry_run: bool = Fa
         if why is None and not force:
             continue
         print(f"{'stale' if dry_run else 'run'}: {shown(step)} ({why or '--force'})", flush=True)
-        if not dry_run and not run_step(root, step, manifest, made_by):
-            failed.append(shown(step))
         if not dry_run:
-            save_manifest(root, manifest)
+            if run_step(root, step, manifest, made_by):
+                save_stamps(root, {out: manifest[out] for out in step.outs})
+            else:
+                failed.append(shown(step))
     for c in cannot:
         print(f"kept as committed, cannot rebuild here: {c}")
     if failed:

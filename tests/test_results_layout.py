@@ -6,6 +6,7 @@ commands: the engine is what is tested, not the tables."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -91,6 +92,24 @@ def test_stale_steps_rebuild_and_current_ones_do_not(tmp_path):
     (tmp_path / "results/table.md").unlink()  # a deleted output -> rebuilt
     assert results.build(tmp_path, [step]) == 0 and counter.read_text() == "xxx"
     assert results.build(tmp_path, [step], force=True) == 0 and counter.read_text() == "xxxx"
+
+
+def test_a_run_beside_another_keeps_the_stamps_the_other_wrote(tmp_path):
+    """Two `results.py --only` runs side by side: a stamp the other run saved while this one's
+    step ran is still in the manifest after this one saves its own."""
+    other = {"command": "uv run other.py", "commit": "abc", "inputs": "0"}
+    manifest = tmp_path / "results" / "manifest.json"
+    step = _fake(tmp_path, "import json\n"
+                           f"p = {str(manifest)!r}\n"
+                           "m = json.load(open(p))\n"
+                           f"m['results/other.md'] = {other!r}\n"
+                           "json.dump(m, open(p, 'w'))\n"
+                           "print('| a table |')\n")
+    manifest.write_text("{}\n")
+    assert results.build(tmp_path, [step]) == 0
+    stamps = json.loads(manifest.read_text())
+    assert stamps["results/other.md"] == other
+    assert stamps["results/table.md"]["command"].endswith("> results/table.md")
 
 
 def test_a_step_whose_input_is_absent_keeps_its_table(tmp_path, capsys):
