@@ -41,7 +41,6 @@ known delay (controllers.make_predicting_analytic).
 
 from __future__ import annotations
 
-import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -347,7 +346,7 @@ def rival_table(rows: list[dict]) -> str:
 
 def study_models(studies: list[str]) -> dict[str, list[Path]]:
     """--studies A B -> each study's archived seeds' models in seed order (none: {})."""
-    from runs import SEEDS_DIR
+    from runs import SEEDS_DIR, seed_models
 
     if not studies:
         return {}
@@ -356,8 +355,7 @@ def study_models(studies: list[str]) -> dict[str, list[Path]]:
                         f"{' '.join(studies) or 'none'})")
     out = {}
     for study in studies:
-        found = {int(m.group(1)): p for p in SEEDS_DIR.glob(f"{study}_s*.zip")
-                 if (m := re.fullmatch(re.escape(study) + r"_s(\d+)\.zip", p.name))}
+        found = seed_models(study)
         if len(found) < 2:
             raise UserError(f"--studies {study}: {len(found)} archived seed model(s) in "
                             f"{SEEDS_DIR}/{study}_s<k>.zip; a study needs at least 2 "

@@ -29,7 +29,7 @@ import numpy as np
 import tyro
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from deploy import SKIP_S, _error_and_jerk, _play, accepted_by_arm, controllers_for, overrides
+from deploy import RIVALS, SKIP_S, _error_and_jerk, _play, accepted_by_arm, controllers_for, overrides
 
 from panda_lead.errors import UserError, exit_on_user_error
 
@@ -195,17 +195,18 @@ def lead_excess(args: Args, seeds: list[int]) -> None:
 
 
 def lost_paths(args: Args, steps: int, seeds: list[int]) -> None:
-    """The paths the condition's rival (the predicting analytic lead under latency, else the
-    analytic lead) is accepted on and the first model is not, and the reverse: per lost path,
-    the limit that binds, its peak / limit and when the peak comes (s), beside the rival's."""
+    """The paths the condition's rival (deploy.RIVALS: the predicting analytic lead under
+    latency, the filtered one under noise, else the analytic lead) is accepted on and the first
+    model is not (counted the other way too): per lost path, the limit that binds, its peak /
+    limit and when the peak comes (s), beside the rival's."""
     from panda_lead.core import home_qpos
-    from panda_lead.limits import JOINT_ACC, JOINT_JERK, JOINT_VEL, ROBOT_DT, command_stream, derivatives
+    from panda_lead.limits import ROBOT_DT, command_stream, derivatives
 
-    limits = {"velocity": (0, JOINT_VEL), "acceleration": (1, JOINT_ACC), "jerk": (2, JOINT_JERK)}
+    order = {"velocity": 0, "acceleration": 1, "jerk": 2}  # derivatives()'s outputs
     for cond in args.conditions:
         ctrls = controllers_for(cond, args.models[:1], steps)
-        rival, model = ("Analytic+predict" if "Analytic+predict" in ctrls else "Analytic",
-                        list(ctrls)[-1])
+        rival = next((r for r in RIVALS if r in ctrls), "Analytic")
+        model = list(ctrls)[-1]  # (controllers_for puts the models last)
         rs = {name: _play(ctrls[name], seeds) for name in (rival, model)}
         checks = {name: accepted_by_arm(r) for name, r in rs.items()}
         lost = [s for s in seeds if checks[rival][s].accepted and not checks[model][s].accepted]
@@ -217,10 +218,9 @@ def lost_paths(args: Args, steps: int, seeds: list[int]) -> None:
             when = ""
             kind = c.worst_limit.split()  # "joint 2 acceleration" or "tip jerk"
             if kind[0] == "joint":
-                order, limit = limits[kind[2]]
                 stream = command_stream(r.q_goal, r.dt, home_qpos())
                 first = int(round((2 * r.dt + SKIP_S) / ROBOT_DT))
-                values = derivatives(stream, ROBOT_DT)[order][first:, int(kind[1]) - 1]
+                values = derivatives(stream, ROBOT_DT)[order[kind[2]]][first:, int(kind[1]) - 1]
                 when = f" at {SKIP_S + np.argmax(np.abs(values)) * ROBOT_DT:.2f} s"
             print(f"  {s} {r.meta.get('shape', '?')}: {c.worst_limit} {c.worst_margin:.2f}{when}"
                   f" (rival: {checks[rival][s].worst_limit} {checks[rival][s].worst_margin:.2f})",

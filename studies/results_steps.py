@@ -94,21 +94,21 @@ ROWS = ("none", "delay1", "delay3", "camera3", "noise1", "noise2")
 
 
 def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS,
-            seeds: str = "0-99", *extra: str) -> Step:
-    """studies/deploy.py's table and figure for these models on test seeds 0-99 (or others)."""
+            seeds: str = "0-99", *extra: str, studies: tuple[str, str] | None = None) -> Step:
+    """studies/deploy.py's table and figure for these models on test seeds 0-99 (or others);
+    with ``studies`` (A, B) the command names the two studies (--studies: both studies' seeds'
+    rows and B minus A), ``models`` being their seeds' files, what the step reads."""
+    pick = ("--studies", *studies) if studies else ("--models", *models)
     return Step((f"{out_dir}/deploy.md", f"{out_dir}/deploy.png"),
-                ("studies/deploy.py", "--models", *models, "--seeds", seeds, "--conditions",
+                ("studies/deploy.py", *pick, "--seeds", seeds, "--conditions",
                  *conditions, *extra, "--out", "{dir}"), tuple(models), section="all")
 
 
 def _deploy_studies(a: str, b: str, out_dir: str, conditions: tuple[str, ...],
                     seeds: str, *extra: str) -> Step:
-    """studies/deploy.py --studies A B: both studies' five seeds' rows and B minus A, each
-    the mean over its seeds (two-level bootstrap)."""
-    models = tuple(f"archive/seeds/{st}_s{k}.zip" for st in (a, b) for k in range(1, 6))
-    return Step((f"{out_dir}/deploy.md", f"{out_dir}/deploy.png"),
-                ("studies/deploy.py", "--studies", a, b, "--seeds", seeds, "--conditions",
-                 *conditions, *extra, "--out", "{dir}"), models, section="all")
+    """_deploy for two five-seed studies, A then B."""
+    models = [f"archive/seeds/{st}_s{k}.zip" for st in (a, b) for k in range(1, 6)]
+    return _deploy(models, out_dir, conditions, seeds, *extra, studies=(a, b))
 
 
 def _five_seeds(study: str, against: str) -> list[Step]:

@@ -498,6 +498,20 @@ def _bound_best_model(s: dict, args: Args) -> Path:
 SEEDS_DIR = Path("archive/seeds")
 
 
+def seed_path(study: str, seed: int) -> Path:
+    """Where `keep` archives a study's seed: archive/seeds/<study>_s<seed>.zip."""
+    return SEEDS_DIR / f"{study}_s{seed}.zip"
+
+
+def seed_models(study: str) -> dict[int, Path]:
+    """A study's kept seeds' models, by training seed (seed_path's files that exist)."""
+    import re
+
+    pattern = re.compile(re.escape(study) + r"_s(\d+)\.zip")
+    return {int(m.group(1)): p for p in SEEDS_DIR.glob(f"{study}_s*.zip")
+            if (m := pattern.fullmatch(p.name))}
+
+
 def keep(args: Args) -> None:
     """Every seed's best model of a study into archive/seeds/<study>_s<N>.zip (weights and
     sidecar, no card: these are evaluated in tables, the chosen run is the one to use). Each
@@ -508,7 +522,7 @@ def keep(args: Args) -> None:
         raise UserError("keep needs --runs FOLDER..., the folders holding the study's run folders")
     for s in load_study(args.study, ("model",)):
         src = _bound_best_model(s, args)
-        dst = SEEDS_DIR / f"{args.study}_s{s['seed']}.zip"
+        dst = seed_path(args.study, s["seed"])
         dst.parent.mkdir(parents=True, exist_ok=True)
         with archive_lock(dst):
             if pair_state(dst) != "absent" and not args.force:

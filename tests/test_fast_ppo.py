@@ -342,6 +342,7 @@ def test_the_curvature_weight_can_differ_in_episodes_with_latency():
             successor, has_next = model._neighbours(1)
             predecessor, has_previous = model._neighbours(-1)
             mb = {"observations": flat["observations"], "has_next": has_next,
+                  "delayed": model._delayed(flat["observations"]),  # as _train marks them
                   "next_observations": flat["observations"][successor],
                   "has_previous": has_previous,
                   "previous_observations": flat["observations"][predecessor]}

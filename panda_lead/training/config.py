@@ -168,8 +168,11 @@ class TrainConfig:
                                       ("caps_temporal", 0, math.inf, False),
                                       ("caps_spatial", 0, math.inf, False),
                                       ("caps_curvature", 0, math.inf, False),
+                                      ("caps_curvature_delayed", 0, math.inf, False),
                                       ("caps_sigma", 0, math.inf, True)):
             v = getattr(self, name)
+            if v is None and name == "caps_curvature_delayed":  # unset: caps_curvature's
+                continue
             ok = isinstance(v, int | float) and math.isfinite(v) and v <= hi and (
                 v > lo if lo_open else v >= lo)
             if not ok:
@@ -186,10 +189,6 @@ class TrainConfig:
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
         if self.caps_curvature_delayed is not None:
-            v = self.caps_curvature_delayed
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise UserError(f"--caps-curvature-delayed must be a finite number >= 0, got "
-                                f"{v!r}")
             if "installation" not in self.env.obs_features:
                 raise UserError("--caps-curvature-delayed needs the installation feature in "
                                 "the observation (--env.obs-features ... installation): it "

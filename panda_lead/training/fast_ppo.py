@@ -207,13 +207,18 @@ class FastPPO(PPO):
         return (th.as_tensor(other, device=self.device),
                 th.as_tensor(valid, dtype=th.float32, device=self.device))
 
+    def _delayed(self, observations: th.Tensor) -> th.Tensor:
+        """Whether each observation's episode has latency: any of its installation delays
+        (``delay_columns``) non-zero."""
+        return observations[:, list(self.delay_columns)].abs().sum(dim=1) > 0
+
     def _caps_losses(self, mb: dict, mean: th.Tensor
                      ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
         """CAPS's temporal and spatial terms and the curvature term for one minibatch: mean
         squared (first or second) differences of the mean action, per action dimension (zero
         when the weight is 0); last, the curvature term weighted per observation (the weight
-        of its episode: caps_curvature, or caps_curvature_delayed where the episode has
-        latency), what the loss adds."""
+        of its episode: caps_curvature, or caps_curvature_delayed where ``mb["delayed"]`` says
+        the episode has latency), what the loss adds."""
         zero = mean.new_zeros(())
         temporal = spatial = curvature = weighted = zero
         has_next = mb["has_next"]
@@ -234,8 +239,7 @@ class FastPPO(PPO):
             if self.caps_curvature_delayed is None:  # (the one weight: as it was written first)
                 weighted = self.caps_curvature * curvature
             else:
-                delayed = mb["observations"][:, list(self.delay_columns)].abs().sum(dim=1) > 0
-                weight = th.where(delayed, self.caps_curvature_delayed, self.caps_curvature)
+                weight = th.where(mb["delayed"], self.caps_curvature_delayed, self.caps_curvature)
                 weighted = (weight * per).sum() / count
         return temporal, spatial, curvature, weighted
 
@@ -282,6 +286,8 @@ class FastPPO(PPO):
             successor, has_successor = self._neighbours(1)
             if self._curvature:
                 predecessor, has_predecessor = self._neighbours(-1)
+            if self.caps_curvature_delayed is not None:  # each observation's episode, once
+                delayed = self._delayed(flat["observations"])
         params = list(self.policy.parameters())
         continue_training = True
         for epoch in range(self.n_epochs):
@@ -296,6 +302,8 @@ class FastPPO(PPO):
                     epoch_data["previous_observations"] = flat["observations"][
                         predecessor[order]]
                     epoch_data["has_previous"] = has_predecessor[order]
+                if self.caps_curvature_delayed is not None:
+                    epoch_data["delayed"] = delayed[order]
             for start in range(0, n, batch):
                 mb = {name: t[start:start + batch] for name, t in epoch_data.items()}
                 if self._caps:
