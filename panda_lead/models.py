@@ -41,7 +41,7 @@ from .paths import shipped
 ARCHIVE_DIR = Path("archive")  # where train.py --archive writes, in the working folder
 # The headline model: what eval.py runs when no --model is given (named, not the newest file:
 # git keeps no modification times).
-DEFAULT_MODEL = "v5_err_decay_s4"
+DEFAULT_MODEL = "v5_err_decay_kept_s3"
 SIDECAR_MEMBER = "panda_lead_sidecar.json"
 ACTIVATIONS = ("tanh", "relu")
 # Size bounds, checked before anything is read: far above any real model of this repo (a

@@ -12,7 +12,16 @@ import subprocess
 import sys
 from pathlib import Path
 
-from results_steps import BY_SELECTION, HEADLINE, HEADLINE_STUDY, PREVIOUS, SHARE_LADDER, SMOOTH
+from results_steps import (
+    BY_SELECTION,
+    HEADLINE,
+    HEADLINE_STUDY,
+    PRESET_STUDY,
+    PREVIOUS,
+    PREVIOUS_HEADLINE,
+    SHARE_LADDER,
+    SMOOTH,
+)
 
 # issue 36's large-batch deployment studies (five seeds each, every seed kept)
 LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_large_batch_wide_5m",
@@ -43,10 +52,10 @@ EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                "deploy_large_batch_curv10_continued_5m": [
                    "deploy_large_batch_curv10_continued_5m_rest"],
                **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
-                                            HEADLINE_STUDY, "ikfree_5m"]}}
+                                            PRESET_STUDY, "ikfree_5m"]}}
 # archived name -> (study, sweep folders holding its runs)
-CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY,
-                                                              f"{HEADLINE_STUDY}_s45"]),
+CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
+          PREVIOUS_HEADLINE: (PRESET_STUDY, [PRESET_STUDY, f"{PRESET_STUDY}_s45"]),
           PREVIOUS: (PREVIOUS, [PREVIOUS]), SMOOTH: (SMOOTH, [SMOOTH]),
           "ikfree_long": ("ikfree_long", ["ikfree_long"]),
           "delayed_5m": ("delayed_5m", ["delayed_5m"]), "noisy_5m": ("noisy_5m", ["noisy_5m"]),
@@ -81,7 +90,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
         **{s: f"{s}*" for s in LARGE_BATCH if s in EXTRA_SEEDS}}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
-POLICY_SETS = [HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
+POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m", "preview_continued_10m"]
 # single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
 # device pilots on the deployment world's share of nominal episodes (docs/deploy.md)

@@ -50,7 +50,7 @@ class Args:
     models: tuple[Path, ...] = ()
     """score: the model zips to play on the selection set."""
     model_a: Path = Path("archive/v5_err_decay_s4.zip")
-    """size: the first model of the pilot pair (the headline study's chosen seed)."""
+    """size: the first model of the pilot pair (the headline when the set was sized)."""
     model_b: Path = Path("archive/v5_err_decay_wide_lr3e-4.zip")
     """size: the second (the runner-up study's chosen seed)."""
     pilot: int = 200

@@ -229,11 +229,11 @@ EVAL_HELP = """Run a policy (or a baseline) on seeds: watch it, record a video, 
     {cmd} --seed 7                                       # viewer (needs a display)
     {cmd} --seed 7 --video videos/h_7.mp4                # offscreen MP4, any machine
     {cmd} --seed 7 --video videos/cmp.mp4 --compare      # classical | policy
-    {cmd} --seeds 0-99 --prefix eval_h --model archive/v5_err_decay_s4.zip
+    {cmd} --seeds 0-99 --prefix eval_h --model archive/v5_err_decay_kept_s3.zip
     {cmd} --seeds 0-99 --prefix analytic --controller analytic
 
 The env is rebuilt from the model's sidecar, so any archived model runs on any seed set
-(default: the headline model, archive/v5_err_decay_s4.zip).
+(default: the headline model, archive/v5_err_decay_kept_s3.zip).
 
 Model-file commands (each has its own --help):
 
