@@ -216,3 +216,24 @@ def test_a_table_names_the_set_its_seeds_come_from():
     assert seeds.set_name([s for s, _ in seeds.EVAL_SET]) == "evaluation"
     assert seeds.set_name([0, seeds.SELECT_SEEDS[0]]) == "trajectory"
     assert seeds.set_name([]) == "trajectory"
+
+
+def test_the_headline_is_the_rules_pick_and_the_default_model(monkeypatch):
+    """The README's headline follows the stated rule: the archived headline is the seed that
+    `choose --by selection` picks from the committed scores of its study's kept seeds, it holds
+    that seed's weights, and eval.py plays it by default (until 2026-11-27 the README named a
+    model the rule no longer picked)."""
+    import zipfile
+
+    from panda_lead.models import DEFAULT_MODEL
+
+    monkeypatch.chdir(ROOT)
+    steps, runs = _load("results_steps"), _load("runs")
+    assert steps.HEADLINE_STUDY in steps.BY_SELECTION
+    assert DEFAULT_MODEL == steps.HEADLINE
+    study = runs.load_study(steps.HEADLINE_STUDY, ("best",))
+    chosen = runs.choose_by_selection(steps.HEADLINE_STUDY, study, runs.SELECTION_SCORES)
+    assert steps.HEADLINE == f"{steps.HEADLINE_STUDY}_s{chosen['seed']}"
+    with zipfile.ZipFile(ROOT / "archive" / f"{steps.HEADLINE}.zip") as a, \
+            zipfile.ZipFile(runs.seed_path(steps.HEADLINE_STUDY, chosen["seed"])) as b:
+        assert a.read("policy.pth") == b.read("policy.pth")
