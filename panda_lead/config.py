@@ -25,7 +25,12 @@ OBS_FEATURES = {
     "target_preview": 18,  # PREVIEW_POINTS future target offsets (EnvConfig.preview_times)
     "preview_jerk": 18,  # the same points as what the Taylor guess misses (see OBS_SCALE)
     "installation": 4,  # what the installation's engineer knows: latencies and noise (OBS_SCALE)
+    "recent_actions": 18,  # RECENT_ACTIONS of the policy's own last actions, never delayed
 }
+# recent_actions: the policy's last actions, newest first. Under k steps of latency each way a
+# lead's observation is k steps old and its action lands k steps late, so the last 2k actions
+# are what the delayed system needs to be Markov again (issue 36); 2 x 3 steps at most here.
+RECENT_ACTIONS = 6
 # The features that show the planned path ahead: a model observing one "knows the planned path"
 # (issue 37), a labelled variant never ranked with the causal ones.
 PATH_FEATURES = ("target_preview", "preview_jerk")
@@ -76,6 +81,10 @@ OBS_SCALE = {
     # action_delay and target_delay (control steps) and its target reading's noise std (cm),
     # as drawn for the episode. Known, not measured: never noisy. 0-3 steps / 0-2 cm at 3.
     "installation": 3.0,
+    # The policy's own last actions (RECENT_ACTIONS, newest first), in [-1, 1] as it sent them.
+    # The lead's computer knows what it sent when it sent it: unlike every other feature this
+    # one skips the observation delay (and is never noisy).
+    "recent_actions": 1.0,
 }
 PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
 # The observation layouts of the reference ladder (the presets build on them).
@@ -311,9 +320,10 @@ class EnvConfig:
                 raise UserError(f"obs_noise: unknown feature {f!r}" + did_you_mean(f, OBS_FEATURES))
             if not (isinstance(std, int | float) and math.isfinite(std) and std >= 0):
                 raise UserError(f"obs_noise[{f!r}] must be a finite std >= 0, got {std!r}")
-        if "installation" in self.obs_noise:
-            raise UserError("obs_noise: the installation feature is known, not measured: it "
-                            "takes no noise")
+        for known in ("installation", "recent_actions"):
+            if known in self.obs_noise:
+                raise UserError(f"obs_noise: the {known} feature is known, not measured: it "
+                                "takes no noise")
         set_("obs_noise", {f: float(v) for f, v in self.obs_noise.items()})
         set_("preview_times", check_preview_times(self.preview_times))
         set_("ik", IKConfig.from_dict(self.ik))
@@ -356,6 +366,9 @@ class EnvConfig:
             raise UserError(f"target_delay must be 0..50 steps, got {self.target_delay}")
         if self.action not in ACTIONS:
             raise UserError(f"unknown action {self.action!r}" + did_you_mean(self.action, ACTIONS))
+        if self.action != "lead" and "recent_actions" in self.obs_features:
+            raise UserError("recent_actions holds 3-D leads; it cannot be observed with "
+                            f"action {self.action!r}")
         if self.action != "lead" and "prev_action" in self.obs_features:
             raise UserError("prev_action is a 3-D lead feature; it cannot be observed with "
                             f"action {self.action!r}")

@@ -81,6 +81,7 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     | target_preview | 18   | p(t + h) - p(t), h in preview_times (m; see below)   | 0.1        |
     | preview_jerk   | 18   | 6 (p(t + h) - p - v h - a h^2/2) / h^3 (m/s^3)       | 250        |
     | installation   | 4    | the episode's 3 delays (steps), target noise (cm)    | 3          |
+    | recent_actions | 18   | the last 6 actions sent, newest first (not delayed)  | 1          |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
     gives the index ranges. ``tip_error_avg`` moves each step ``dt/error_avg_time`` of the way

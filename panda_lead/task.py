@@ -17,6 +17,7 @@ from .config import (
     LIMIT_FROM_S,
     OBS_SCALE,
     PATH_FEATURES,
+    RECENT_ACTIONS,
     REWARD_TERMS,
     EnvConfig,
     action_dim,
@@ -65,6 +66,10 @@ class LeadTask:
         self.rngs = [np.random.default_rng() for _ in range(n)]
         self.action_dim = action_dim(c.action)
         self.prev_action = np.zeros((n, self.action_dim))
+        # recent_actions: the last actions, newest first, and their observed columns
+        self._recent = np.zeros((n, RECENT_ACTIONS, self.action_dim))
+        self._recent_cols = next((slice(a, b) for f, a, b in self.layout
+                                  if f == "recent_actions"), None)
         self.lead = np.zeros((n, 3))
         self.ee_vel = np.zeros((n, 3))
         self._prev_ee = np.zeros((n, 3))
@@ -203,6 +208,7 @@ class LeadTask:
         if self._feedforward is not None:  # the new episodes' planned paths, once per reset
             self._feedforward.update(self)
         self.prev_action[ids] = 0.0
+        self._recent[ids] = 0.0
         self.lead[ids] = 0.0
         self.ee_vel[ids] = 0.0
         self._prev_ee[ids] = core.tip_pos[ids]
@@ -312,6 +318,8 @@ class LeadTask:
         source = {"ee_pos": core.tip_pos, "ee_vel": self.ee_vel, "target_pos": pos,
                   "target_vel": vel, "target_acc": acc, "joint_pos": core.qpos,
                   "joint_vel": core.qvel, "prev_action": self.prev_action}
+        if self._recent_cols is not None:
+            source["recent_actions"] = self._recent.reshape(self.n, -1)
         if self._error_observed:
             source["tip_error"] = core.tip_pos - pos
         if self._avg_observed:
@@ -396,6 +404,9 @@ class LeadTask:
                 terms[k] = np.where(unstable, 0.0, terms[k])
         reward = sum(terms.values())
         self.prev_action = action
+        if self._recent_cols is not None:
+            self._recent[:, 1:] = self._recent[:, :-1]
+            self._recent[:, 0] = action
         obs = self._observed(self.observe(observed, target=now, drawn=drawn),
                              unstable if any_unstable else None)
         k = np.minimum(core.step_count, self.config.episode_steps)
@@ -515,7 +526,9 @@ class LeadTask:
         if self._delayed:
             self._obs_hist[:, 1:] = self._obs_hist[:, :-1]
             self._obs_hist[:, 0] = obs
-            obs = self._obs_hist[self._all, self.obs_delay]
+            obs = self._obs_hist[self._all, self.obs_delay]  # (a copy: fancy indexing)
+            if self._recent_cols is not None:  # the policy's own actions are not late
+                obs[:, self._recent_cols] = self._obs_hist[:, 0, self._recent_cols]
         if unstable is not None:
             obs[unstable] = 0.0  # never hand NaNs to the learner
         return self._stacked(obs)

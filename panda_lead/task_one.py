@@ -59,8 +59,9 @@ class LeadTaskOne(LeadTask):
         c = self.config
         self._inv_scale_list = self._inv_scale.tolist()
         self._base_dim = self.layout[-1][2]  # one observation's size
-        # the observed features' positions in step_one's tuple of every feature
-        at = [_SOURCES.index(f) for f in self._features]
+        # the observed features' positions in step_one's tuple of every feature (recent_actions
+        # is not on the lean route: step() makes it)
+        at = [_SOURCES.index(f) for f in self._features if f in _SOURCES]
         self._pick = itemgetter(*at) if len(at) > 1 else lambda source: (source[at[0]],)
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         # the weights, signed as step_one's terms use them (one unpack, not a dict lookup each)
@@ -76,6 +77,7 @@ class LeadTaskOne(LeadTask):
         self._lean_lead = (isinstance(self.core, ArmOne) and self.core.lean
                            and c.action == "lead" and not self._delayed
                            and not c.lead_filter_hz and not c.noisy_lead_filter_hz
+                           and "recent_actions" not in c.obs_features
                            and not c.target_delay
                            and not c.noisy_ik_target and not c.target_filter
                            and not c.arm_filter and not c.feedforward and not c.w_limit)

@@ -786,3 +786,41 @@ def test_deploy_compares_two_studies_over_their_seeds(tiny_run, tmp_path, monkey
         assert exc.value.code == 2
         assert words in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_recent_actions_are_the_last_actions_sent_and_skip_the_observation_delay():
+    """recent_actions (issue 36: a delayed system is Markov again with its recent actions): the
+    last RECENT_ACTIONS actions the policy sent, newest first, zeros before the episode, as
+    fresh under an observation delay as without one, while prev_action arrives late with the
+    rest of the observation; the single env observes what the batched one does."""
+    from panda_lead.config import RECENT_ACTIONS
+    from panda_lead.env import PandaLeadEnv
+
+    features = ("tip_error", "prev_action", "recent_actions")
+    config = EnvConfig(obs_features=features, obs_delay=2, action_delay=1, episode_steps=12)
+    task = LeadTask(config, 3)
+    cols = {f: slice(a, b) for f, a, b in task.layout}
+    rng = np.random.default_rng(0)
+    obs, sent = task.reset(traj_seeds=[1, 2, 3]), []
+    assert not obs[:, cols["recent_actions"]].any()
+    single = PandaLeadEnv(config)
+    first, _ = single.reset(seed=0, options={"traj_seed": 1})
+    np.testing.assert_array_equal(first, obs[0])
+    for t in range(10):
+        action = rng.uniform(-1, 1, (3, 3)).astype(np.float32)
+        sent.insert(0, action)
+        obs = task.step(action)[0]
+        got = obs[:, cols["recent_actions"]].reshape(3, RECENT_ACTIONS, 3)
+        for k in range(RECENT_ACTIONS):
+            want = sent[k] if k < len(sent) else np.zeros((3, 3))
+            np.testing.assert_allclose(got[:, k], want, atol=1e-6)
+        late = sent[2] if t >= 2 else np.zeros((3, 3))  # the observation is 2 steps old
+        np.testing.assert_allclose(obs[:, cols["prev_action"]], late, atol=1e-6)
+        np.testing.assert_array_equal(single.step(action[0])[0], obs[0])
+
+
+def test_recent_actions_take_no_noise_and_need_a_lead():
+    with pytest.raises(UserError, match="recent_actions feature is known, not measured"):
+        EnvConfig(obs_features=("recent_actions",), obs_noise={"recent_actions": 0.1})
+    with pytest.raises(UserError, match="recent_actions holds 3-D leads"):
+        EnvConfig(obs_features=("recent_actions",), action="joint")

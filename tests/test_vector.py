@@ -22,13 +22,15 @@ from panda_lead.vector import PandaLeadVecEnv
 # Settings that take different code (each is a branch of the single env's fast step): ragged
 # episode ends (self-collisions terminate, with big leads), observation noise (drawn per env),
 # non-zero reward weights and a settled-only reward, delays and stacking, other actions and IKs.
+# every feature the single env's lean route observes (recent_actions takes the general one)
+LEAN_FEATURES = tuple(f for f in OBS_FEATURES if f != "recent_actions")
 CONFIGS = {
     "default": {},
     "ragged": dict(max_lead=1.0, terminate_on_collision=True, w_termination=2.0,
                    w_collision=30.0, obs_noise={"ee_pos": 0.01, "target_vel": 0.05},
                    episode_steps=30),
     "weights": dict(w_tracking=0.7, tracking_scale=0.04, w_action=0.2, w_action_change=0.1,
-                    w_alive=0.05, reward_after_s=0.05, obs_features=OBS_FEATURES),
+                    w_alive=0.05, reward_after_s=0.05, obs_features=LEAN_FEATURES),
     "latency": dict(obs_delay=2, action_delay=1, random_delay=True, obs_stack=2,
                     obs_noise={"joint_vel": 0.1}, obs_features=OBS_FEATURES),
     "joint": dict(action="joint", ik={"iters": 2}),

@@ -414,6 +414,18 @@ PRESETS.update([
               f"continued with curvature weight {w:g} in the episodes with latency (25-D)",
               **DEPLOY_LARGE_BATCH, caps_curvature=10.0, caps_curvature_delayed=float(w),
               init_from=LARGE_BATCH_SEEDS) for w in (30, 100)),
+    # ... with the policy's own last 6 actions observed, undelayed (issue 36's first idea: a
+    # delayed system is Markov again only with its recent actions; the observation, prev_action
+    # included, arrives up to 3 steps late, the lead lands up to 3 steps late). The new inputs
+    # start at zero weight (training/warm_start.py): the first policy is the starting model's.
+    # Control: curv10 (same start, budget and world).
+    _preset("deploy_large_batch_curv10_actions_continued", "deploy_large_batch_curv10_continued "
+            "with the last 6 actions observed, not delayed (recent_actions; 43-D)",
+            **{**DEPLOY_LARGE_BATCH,
+               "env": dict(DEPLOY_LARGE_BATCH["env"],
+                           obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
+                           + ("recent_actions",))},
+            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
