@@ -32,7 +32,8 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 # trajectories
 BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_5m",
                 "deploy_large_batch_wide_5m", "deploy_large_batch_continued_5m",
-                "v5_err_decay_preview_continued_5m", "deploy_large_batch_curv10_continued_5m"}
+                "v5_err_decay_preview_continued_5m", "deploy_large_batch_curv10_continued_5m",
+                "deploy_large_batch_curv10_actions_continued_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -417,6 +418,19 @@ def table_steps() -> list[Step]:
     steps += _five_seeds(curv, cont)
     steps.append(_deploy_studies(cont, curv, f"results/studies/{curv}/test1000",
                                  ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
+    # ... with the policy's own last actions observed, undelayed (recent_actions), from the
+    # same start and budget: against curv10, and all ten seeds' acceptance on the test seeds
+    act = "deploy_large_batch_curv10_actions_continued_5m"
+    steps += _five_seeds(act, curv)
+    steps.append(_deploy_studies(curv, act, f"results/studies/{act}/test1000",
+                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
+    # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
+    # the hardware model: every row on all 1,000 test seeds
+    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",
+                          f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
+                         f"results/studies/{act}/lowpass1000",
+                         ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2"),
+                         "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
     # on all 1,000 test seeds, the noise rows against the filtered rival

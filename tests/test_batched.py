@@ -185,10 +185,12 @@ def test_numpy_actor_is_sb3s_deterministic_policy(policy):
 # route with noise, weights, a settled-only reward, every feature, stacking; ragged ends; and
 # the routes LeadTaskOne hands to LeadTask (delays, joint actions, the IK at every substep, the
 # collision-aware IK, which runs on the batch).
+# every feature the lean route observes (recent_actions takes LeadTask's route)
+LEAN_FEATURES = tuple(f for f in OBS_FEATURES if f != "recent_actions")
 SINGLE_CONFIGS = {
     "default": {},
     "weights": dict(w_tracking=0.7, tracking_scale=0.04, w_action=0.2, w_action_change=0.1,
-                    w_alive=0.05, reward_after_s=0.05, obs_features=OBS_FEATURES,
+                    w_alive=0.05, reward_after_s=0.05, obs_features=LEAN_FEATURES,
                     obs_noise={"ee_pos": 0.01, "target_vel": 0.05, "tip_error_avg": 0.001}),
     "stack": dict(obs_stack=3, obs_features=("tip_error", "tip_error_avg", "joint_vel")),
     # the tip error from two noisy readings neither of which is observed (hidden channels)
@@ -196,7 +198,7 @@ SINGLE_CONFIGS = {
                      obs_noise={"ee_pos": 0.01, "target_pos": 0.02, "tip_error": 0.003,
                                 "tip_error_avg": 0.001, "target_vel": 0.05}, random_noise=True),
     "ragged": dict(max_lead=1.0, terminate_on_collision=True, w_termination=2.0,
-                   w_collision=30.0, obs_noise={"joint_pos": 0.02}, obs_features=OBS_FEATURES),
+                   w_collision=30.0, obs_noise={"joint_pos": 0.02}, obs_features=LEAN_FEATURES),
     "latency": dict(obs_delay=2, action_delay=1, random_delay=True, obs_stack=2,
                     obs_noise={"joint_vel": 0.1}, obs_features=OBS_FEATURES),
     "joint": dict(action="joint", ik={"iters": 2}),
