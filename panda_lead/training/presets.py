@@ -109,6 +109,11 @@ PRESETS.update([
     _preset("v5_err_decay", "v5_err with the learning rate decayed linearly to 0 (the climb's "
             "two changes that each helped, together)",
             env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear"),
+    # + the policy's own last 6 actions (recent_actions): in the deployment world they bought
+    # 0.07 cm without delay (issue 36); does the headline's world take the same memory?
+    _preset("v5_err_decay_actions", "v5_err_decay + the policy's own last 6 actions observed "
+            "(36-D)", env=dict(obs_features=OBS_15 + ("tip_error", "recent_actions")),
+            lr_schedule="linear"),
     # + a running average of the tip error (0.3 s, clipped at 2 cm): the slow bias that one
     # error sample cannot show, what a PID's integral term acts on (config.OBS_SCALE).
     _preset("v5_err_avg_decay", "v5_err_decay + the tip error's running average observed "
