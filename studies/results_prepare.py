@@ -45,6 +45,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
+              "v5_err_decay_actions_5m",
               *LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
@@ -88,7 +89,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         "deploy_caps_armfilter_5m": "deploy_caps_armfilter_5m*",
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
-        "v5_err_decay_kept": "v5_err_decay_kept",
+        "v5_err_decay_kept": "v5_err_decay_kept", "v5_err_decay_actions_5m": "v5_err_decay_actions_5m",
         **{s: s for s in (*LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)

@@ -169,6 +169,9 @@ def table_steps() -> list[Step]:
     # itself on 2026-11-24/25's machines): what another CPU family's draw of the same five
     # training seeds gives
     steps += [_report("v5_err_decay_kept"), _compare("v5_err_decay_kept", HS)]
+    # ... and with the policy's own last 6 actions observed (recent_actions), against it
+    steps += [_report("v5_err_decay_actions_5m"),
+              _compare("v5_err_decay_actions_5m", "v5_err_decay_kept")]
     stopped = ("results/studies/ikfree_long/stopped_const_lr_diagnostics.csv",
                "results/studies/ikfree_long/stopped_err_lr1e-3_diagnostics.csv")
     steps += [
