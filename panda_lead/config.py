@@ -31,6 +31,8 @@ OBS_FEATURES = {
 # lead's observation is k steps old and its action lands k steps late, so the last 2k actions
 # are what the delayed system needs to be Markov again (issue 36); 2 x 3 steps at most here.
 RECENT_ACTIONS = 6
+# Features the controller knows rather than measures: never noisy
+KNOWN_FEATURES = ("installation", "recent_actions")
 # The features that show the planned path ahead: a model observing one "knows the planned path"
 # (issue 37), a labelled variant never ranked with the causal ones.
 PATH_FEATURES = ("target_preview", "preview_jerk")
@@ -320,7 +322,7 @@ class EnvConfig:
                 raise UserError(f"obs_noise: unknown feature {f!r}" + did_you_mean(f, OBS_FEATURES))
             if not (isinstance(std, int | float) and math.isfinite(std) and std >= 0):
                 raise UserError(f"obs_noise[{f!r}] must be a finite std >= 0, got {std!r}")
-        for known in ("installation", "recent_actions"):
+        for known in KNOWN_FEATURES:
             if known in self.obs_noise:
                 raise UserError(f"obs_noise: the {known} feature is known, not measured: it "
                                 "takes no noise")

@@ -35,8 +35,9 @@ from .core import ArmBatch
 from .core_one import ArmOne, _Deferred
 from .task import LeadTask
 
-# step_one's order of the observation features (its tuple of their values)
-_SOURCES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "joint_pos",
+# step_one's order of the observation features (its tuple of their values): the features the
+# lean route builds (recent_actions is LeadTask.step()'s alone)
+LEAN_FEATURES = ("ee_pos", "ee_vel", "target_pos", "target_vel", "target_acc", "joint_pos",
             "joint_vel", "prev_action", "tip_error", "tip_error_avg", "target_preview",
             "preview_jerk", "installation")
 
@@ -59,9 +60,8 @@ class LeadTaskOne(LeadTask):
         c = self.config
         self._inv_scale_list = self._inv_scale.tolist()
         self._base_dim = self.layout[-1][2]  # one observation's size
-        # the observed features' positions in step_one's tuple of every feature (recent_actions
-        # is not on the lean route: step() makes it)
-        at = [_SOURCES.index(f) for f in self._features if f in _SOURCES]
+        # the observed features' positions in step_one's tuple of every feature
+        at = [LEAN_FEATURES.index(f) for f in self._features if f in LEAN_FEATURES]
         self._pick = itemgetter(*at) if len(at) > 1 else lambda source: (source[at[0]],)
         self._joints_observed = bool({"joint_pos", "joint_vel"} & set(self._features))
         # the weights, signed as step_one's terms use them (one unpack, not a dict lookup each)
@@ -77,7 +77,7 @@ class LeadTaskOne(LeadTask):
         self._lean_lead = (isinstance(self.core, ArmOne) and self.core.lean
                            and c.action == "lead" and not self._delayed
                            and not c.lead_filter_hz and not c.noisy_lead_filter_hz
-                           and "recent_actions" not in c.obs_features
+                           and set(c.obs_features) <= set(LEAN_FEATURES)
                            and not c.target_delay
                            and not c.noisy_ik_target and not c.target_filter
                            and not c.arm_filter and not c.feedforward and not c.w_limit)
@@ -197,7 +197,7 @@ class LeadTaskOne(LeadTask):
             }
         reward = sum(terms.values())
         self._pending_step = (values, lead, ee_vel, ee)
-        # Every feature's values (in _SOURCES' order), the observed ones picked in the
+        # Every feature's values (in LEAN_FEATURES' order), the observed ones picked in the
         # layout's order and chained: no dict of them, no list in between.
         joints = self._joints_observed
         source = (ee, ee_vel, target, path_vel[k], path_acc[k],

@@ -96,6 +96,8 @@ def _pair(a: str, b: str, out: str) -> Step:
 
 
 ROWS = ("none", "delay1", "delay3", "camera3", "noise1", "noise2")
+# every default row of studies/deploy.py (its DEFAULT_CONDITIONS): a hardware candidate's table
+EVERY_ROW = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2")
 
 
 def _deploy(models: list[str], out_dir: str, conditions: tuple[str, ...] = ROWS,
@@ -432,7 +434,7 @@ def table_steps() -> list[Step]:
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",
                           f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
                          f"results/studies/{act}/lowpass1000",
-                         ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2"),
+                         EVERY_ROW,
                          "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
@@ -440,7 +442,7 @@ def table_steps() -> list[Step]:
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_10m_lp10.zip",
                           f"{a}deploy_large_batch_10m_lp10.zip"],
                          f"results/studies/{curv}/lowpass1000",
-                         ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2"),
+                         EVERY_ROW,
                          "0-999", "--check-from", "0.75"))
     # ... and its five seeds' noise rows at the same 10 Hz (not re-tuned per seed)
     steps.append(_deploy([f"{a}seeds/{curv}_s{k}.zip" for k in range(1, 6)],

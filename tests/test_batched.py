@@ -17,9 +17,9 @@ from panda_lead.task import LeadTask
 from panda_lead.vector import PandaLeadVecEnv
 
 try:
-    from panda_lead.task_one import LeadTaskOne
+    from panda_lead.task_one import LEAN_FEATURES, LeadTaskOne
 except ImportError:  # the fast path deleted (task_one.py says how): the reference alone
-    LeadTaskOne = None
+    LeadTaskOne, LEAN_FEATURES = None, tuple(OBS_FEATURES)
 
 # The single env's task: the reference (LeadTask of one slot) and the fast path.
 SINGLE_TASKS = [LeadTask] + ([LeadTaskOne] if LeadTaskOne is not None else [])
@@ -185,8 +185,6 @@ def test_numpy_actor_is_sb3s_deterministic_policy(policy):
 # route with noise, weights, a settled-only reward, every feature, stacking; ragged ends; and
 # the routes LeadTaskOne hands to LeadTask (delays, joint actions, the IK at every substep, the
 # collision-aware IK, which runs on the batch).
-# every feature the lean route observes (recent_actions takes LeadTask's route)
-LEAN_FEATURES = tuple(f for f in OBS_FEATURES if f != "recent_actions")
 SINGLE_CONFIGS = {
     "default": {},
     "weights": dict(w_tracking=0.7, tracking_scale=0.04, w_action=0.2, w_action_change=0.1,

@@ -22,8 +22,10 @@ from panda_lead.vector import PandaLeadVecEnv
 # Settings that take different code (each is a branch of the single env's fast step): ragged
 # episode ends (self-collisions terminate, with big leads), observation noise (drawn per env),
 # non-zero reward weights and a settled-only reward, delays and stacking, other actions and IKs.
-# every feature the single env's lean route observes (recent_actions takes the general one)
-LEAN_FEATURES = tuple(f for f in OBS_FEATURES if f != "recent_actions")
+try:  # the features the single env's lean route builds (the "weights" config stays on it)
+    from panda_lead.task_one import LEAN_FEATURES
+except ImportError:  # the fast path deleted (task_one.py says how)
+    LEAN_FEATURES = tuple(OBS_FEATURES)
 CONFIGS = {
     "default": {},
     "ragged": dict(max_lead=1.0, terminate_on_collision=True, w_termination=2.0,
