@@ -240,6 +240,11 @@ class EnvConfig:
     installation, no delay and no noise. Drawn uniformly, three delays of 0-3 steps are all
     zero in 1 episode of 64: the condition the arm is most often run in is the one training
     sees least."""
+    split_conditions: bool = False
+    """Under random_delay and random_noise: each episode not drawn nominal is delayed only,
+    noisy only, or both, with equal odds, instead of always both. The deployment table's rows
+    test latency without noise and noise without latency; drawn together, latency without
+    noise reaches the policy only in the episodes whose noise factor happens to be near zero."""
     noisy_ik_target: bool = False
     """The IK aims at the target as measured: the latest observation's (noisy) target_pos
     reading, not the true target, so that observation noise reaches the classical controller
@@ -360,6 +365,9 @@ class EnvConfig:
         if self.nominal_share and not (self.random_delay or self.random_noise):
             raise UserError("nominal_share is the share of randomised episodes drawn nominal: "
                             "it needs random_delay or random_noise")
+        if self.split_conditions and not (self.random_delay and self.random_noise):
+            raise UserError("split_conditions draws an episode's latency and noise apart: it "
+                            "needs random_delay and random_noise")
         if self.feedforward and (self.action != "lead" or self.target_delay
                                  or self.noisy_ik_target):
             raise UserError("feedforward puts the feedforward rival under a Cartesian lead: "

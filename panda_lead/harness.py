@@ -29,7 +29,7 @@ from .rollout import identity, iter_record, read_meta, rollout_path, save
 CONTROLLERS = ("policy", "classical", "analytic", "ilc", *controllers.PREVIEW_RIVALS)
 # Settings that only shape training; an evaluation starts from none of them.
 TRAINING_ONLY = {"obs_noise": {}, "obs_delay": 0, "action_delay": 0, "random_delay": False,
-                 "random_noise": False, "nominal_share": 0.0,
+                 "random_noise": False, "nominal_share": 0.0, "split_conditions": False,
                  "target_delay": 0, "noisy_ik_target": False,
                  "terminate_on_collision": False, "max_peak_speed": None, "shapes": None}
 

@@ -218,6 +218,7 @@ class LeadTask:
             for i in ids:
                 self.noise_scale[i] = self.rngs[i].uniform()
             self.noise_scale[nominal] = 0.0
+        undelayed = self._draw_split(ids, nominal)
         if self._lead_smoothed is not None:  # the lead's low-pass in the noisy episodes only
             self._lead_smoothed[ids] = self.noise_scale[ids] > 0
         if self._limit_off is not None:  # a path no controller runs within the limits
@@ -233,9 +234,10 @@ class LeadTask:
             for i in ids:
                 self.obs_delay[i] = self.rngs[i].integers(self.config.obs_delay + 1)
                 self.action_delay[i] = self.rngs[i].integers(self.config.action_delay + 1)
-        if len(nominal):  # the nominal installation: no delay of any kind
-            self.obs_delay[nominal] = self.action_delay[nominal] = 0
-            self.target_delay[nominal] = 0
+        for quiet in (nominal, undelayed):  # the nominal installation, and noise alone
+            if len(quiet):  # (no delay of any kind)
+                self.obs_delay[quiet] = self.action_delay[quiet] = 0
+                self.target_delay[quiet] = 0
         if self._installation_cols is not None and self.config.random_delay:
             # (the delays are drawn after the first observation, whose other columns keep
             # their streams; its installation columns get this episode's)
@@ -255,6 +257,17 @@ class LeadTask:
         if not share:
             return np.zeros(0, dtype=np.int64)
         return np.array([i for i in ids if self.rngs[i].uniform() < share], dtype=np.int64)
+
+    def _draw_split(self, ids, nominal) -> np.ndarray:
+        """Under split_conditions, of slots ``ids`` not drawn ``nominal``: a third keep their
+        noise and lose their delays (returned), a third lose their noise (set here) and keep
+        their delays, a third keep both; drawn from each slot's stream only when asked."""
+        if not self.config.split_conditions:
+            return np.zeros(0, dtype=np.int64)
+        skip = set(np.asarray(nominal).tolist())
+        kinds = {i: self.rngs[i].integers(3) for i in ids if i not in skip}
+        self.noise_scale[[i for i, k in kinds.items() if k == 1]] = 0.0  # latency alone
+        return np.array([i for i, k in kinds.items() if k == 0], dtype=np.int64)
 
     def _set_installation(self, ids) -> None:
         """Slots ``ids``' installation rows: their delays and their target reading's noise."""

@@ -407,6 +407,33 @@ def test_the_cameras_delay_and_the_noise_level_are_drawn_per_episode():
     assert obs.dtype == np.float32 and OBS_SCALE["target_pos"] == 1.0
 
 
+def test_split_conditions_draw_latency_alone_noise_alone_or_both():
+    """split_conditions: an episode not drawn nominal is delayed only (no noise), noisy only (no
+    delay of any kind) or both, about a third each, and its installation feature says which;
+    without it every randomised episode is both."""
+    common = dict(episode_steps=20, obs_delay=3, action_delay=3, target_delay=3,
+                  random_delay=True, random_noise=True, nominal_share=0.25,
+                  obs_features=("target_pos", "installation"), obs_noise={"target_pos": 0.01})
+    kinds = {}
+    for split in (False, True):
+        task = LeadTask(EnvConfig(**common, split_conditions=split), 600)
+        task.rngs = [np.random.default_rng(s) for s in range(600)]
+        task.reset(None, list(range(600)))
+        delays = np.stack([task.obs_delay, task.action_delay, task.target_delay], axis=1)
+        delayed, noisy = delays.any(axis=1), task.noise_scale > 0
+        kinds[split] = (np.mean(delayed & ~noisy), np.mean(~delayed & noisy),
+                        np.mean(delayed & noisy), np.mean(~delayed & ~noisy))
+        np.testing.assert_array_equal(task._installation[:, :3], delays)
+        np.testing.assert_allclose(task._installation[:, 3], task.noise_scale)  # 1 cm at 1
+    latency_alone, noise_alone, both, nominal = kinds[True]
+    # a third of 75% each; a delayed-only draw is all zero in 1 of 64 (then it reads nominal)
+    assert 0.20 < latency_alone < 0.30 and 0.20 < noise_alone < 0.30 and 0.20 < both < 0.30
+    assert 0.20 < nominal < 0.32
+    assert kinds[False][0] == 0 and kinds[False][1] < 0.02  # joint: (all-zero delays: 1 in 64)
+    with pytest.raises(UserError, match="split_conditions"):
+        EnvConfig(random_delay=True, split_conditions=True)
+
+
 # --- the env's own Kalman filter (EnvConfig.target_filter) -----------------------------------
 
 def _distances(config: EnvConfig, act, steps: int = 120, seeds=(3, 4, 5, 6)) -> np.ndarray:

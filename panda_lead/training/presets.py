@@ -431,6 +431,17 @@ PRESETS.update([
                            obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
                            + ("recent_actions",))},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+    # ... with latency and noise drawn apart (EnvConfig.split_conditions): in curv10's world
+    # a randomised episode is always both delayed and noisy, so latency without noise, the
+    # deployment table's latency rows, reaches the policy only where the noise factor is drawn
+    # near zero (a twentieth of those episodes below 0.05). Control: curv10 (same start,
+    # budget and share of nominal episodes).
+    _preset("deploy_large_batch_curv10_split_continued", "deploy_large_batch_curv10_continued "
+            "with latency alone, noise alone or both in the randomised episodes, a third each "
+            "(split_conditions; 25-D)",
+            **{**DEPLOY_LARGE_BATCH,
+               "env": dict(DEPLOY_LARGE_BATCH["env"], split_conditions=True)},
+            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
