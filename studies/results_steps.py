@@ -429,6 +429,12 @@ def table_steps() -> list[Step]:
     steps += _five_seeds(act, curv)
     steps.append(_deploy_studies(curv, act, f"results/studies/{act}/test1000",
                                  ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
+    # ... with latency and noise drawn apart in training (split_conditions), from the same
+    # start and budget: against curv10, and all ten seeds' acceptance on the test seeds
+    apart = "deploy_large_batch_curv10_split_continued_5m"
+    steps += _five_seeds(apart, curv)
+    steps.append(_deploy_studies(curv, apart, f"results/studies/{apart}/test1000",
+                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
     # the hardware model: every row on all 1,000 test seeds
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",

@@ -442,6 +442,16 @@ PRESETS.update([
             **{**DEPLOY_LARGE_BATCH,
                "env": dict(DEPLOY_LARGE_BATCH["env"], split_conditions=True)},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+    # ... both: the recent actions observed and latency and noise drawn apart. Control: the
+    # recent-actions study (same start, budget and inputs; the world's draw alone differs).
+    _preset("deploy_large_batch_curv10_split_actions_continued",
+            "deploy_large_batch_curv10_actions_continued with latency alone, noise alone or both "
+            "in the randomised episodes (split_conditions; 43-D)",
+            **{**DEPLOY_LARGE_BATCH,
+               "env": dict(DEPLOY_LARGE_BATCH["env"], split_conditions=True,
+                           obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
+                           + ("recent_actions",))},
+            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
