@@ -71,6 +71,39 @@ def test_a_warm_started_policy_acts_and_values_as_its_model_on_the_inputs_they_s
         vec.close()
 
 
+def test_a_run_that_stacks_more_observations_starts_as_its_model_on_the_newest():
+    """obs_stack 3 from a model that saw one observation: the newest block (recent_actions
+    added) holds the model's weights, the two older blocks are new inputs at zero weight."""
+    features = OBS_15 + ("tip_error", "recent_actions")
+    config = TrainConfig(env=EnvConfig(obs_features=features, obs_stack=3), n_envs=2,
+                         n_steps=64, batch_size=64, seed=1, init_from=TEMPLATE)
+    vec = make_vec_env(config.env, config.n_envs, config.seed, config.vec_env, 1)
+    try:
+        model = build_ppo(config, vec)
+        warm_start(model, config.init_from, config)
+        old, old_env, _ = load_policy(START)
+        base = obs_layout(features)[-1][2]
+        assert model.observation_space.shape[0] == 3 * base
+        cols = {f: (a, b) for f, a, b in obs_layout(features)}
+        rng = np.random.default_rng(1)
+        new_obs = rng.normal(size=(32, 3 * base)).astype(np.float32)
+        old_obs = np.concatenate([new_obs[:, slice(*cols[f])] for f in old_env["obs_features"]],
+                                 axis=1)
+        moved = new_obs.copy()
+        moved[:, base:] += 5.0  # the older observations, and the newest's recent actions
+        moved[:, slice(*cols["recent_actions"])] -= 2.0
+        with torch.no_grad():
+            for policy in (model.policy, old):
+                policy.set_training_mode(False)
+            means = [policy.get_distribution(torch.as_tensor(o)).distribution.mean.numpy()
+                     for policy, o in ((model.policy, new_obs), (old, old_obs),
+                                       (model.policy, moved))]
+        np.testing.assert_allclose(means[0], means[1], atol=1e-6)
+        np.testing.assert_allclose(means[2], means[0], atol=1e-6)
+    finally:
+        vec.close()
+
+
 @pytest.mark.parametrize("features, kw, words", [
     (OBS_15 + ("tip_error",), dict(net_arch=(256, 256)), "net_arch is [64, 64]"),
     (OBS_15, {}, "it observes tip_error, which this run does not"),

@@ -452,6 +452,19 @@ PRESETS.update([
                            obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
                            + ("recent_actions",))},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+    # ... with the last 4 observations stacked as well (obs_stack 4, the 3 older ones new
+    # inputs at zero weight): with its recent outputs and its recent inputs a memoryless
+    # network can act as a compensator of a few steps' order, which is what a feedback lead
+    # needs under 10-30 ms of latency to lower its gain at the ~15 Hz it rings at after the
+    # swing without lowering it where it tracks. Control: the recent-actions study.
+    _preset("deploy_large_batch_curv10_actions_stack4_continued",
+            "deploy_large_batch_curv10_actions_continued with the last 4 observations stacked "
+            "(obs_stack 4; 4 x 43-D)",
+            **{**DEPLOY_LARGE_BATCH,
+               "env": dict(DEPLOY_LARGE_BATCH["env"], obs_stack=4,
+                           obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
+                           + ("recent_actions",))},
+            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).

@@ -1,10 +1,11 @@
 """Start a run from a trained model's weights (`TrainConfig.init_from`).
 
 A run that observes more than its starting model (the planned path, the previous action, the
-installation) gets the model's weights for every input the model had and zero weights for the
-new ones, so its first policy and value are the model's, exactly; what the new inputs are
-worth is then what training finds, measured against a control that continues the same model
-without them. Every other tensor must match in shape: same network, same action.
+installation, older observations stacked behind the newest) gets the model's weights for every
+input the model had and zero weights for the new ones, so its first policy and value are the
+model's, exactly; what the new inputs are worth is then what training finds, measured against
+a control that continues the same model without them. Every other tensor must match in shape:
+same network, same action.
 
 The exploration starts afresh at the run's --log-std-init; only the mean and the value are the
 model's. A trained lead's std is 0.04-0.10 (log_std -3.2 to -2.3), and PPO's clipped ratio lets
@@ -43,10 +44,13 @@ def check_init_from(template: str, seed: int, config) -> tuple[Path, dict]:
     train, env = side.get("train_config") or {}, side.get("env_config") or {}
     mine = config.env
     for what, theirs, ours in (("net_arch", list(train.get("net_arch", [])), list(config.net_arch)),
-                               ("action", env.get("action", "lead"), mine.action),
-                               ("obs_stack", env.get("obs_stack", 1), mine.obs_stack)):
+                               ("action", env.get("action", "lead"), mine.action)):
         if theirs != ours:
             raise UserError(f"--init-from {path}: its {what} is {theirs!r}, this run's {ours!r}")
+    if env.get("obs_stack", 1) > mine.obs_stack:
+        raise UserError(f"--init-from {path}: it stacks {env.get('obs_stack', 1)} observations, "
+                        f"this run {mine.obs_stack}; a run may remember more than its starting "
+                        "model, not less")
     missing = [f for f in env.get("obs_features", ()) if f not in mine.obs_features]
     if missing:
         raise UserError(f"--init-from {path}: it observes {', '.join(missing)}, which this run "
@@ -54,10 +58,15 @@ def check_init_from(template: str, seed: int, config) -> tuple[Path, dict]:
     return path, side
 
 
-def _column_map(old_features, new_features) -> list[tuple[int, int, int]]:
-    """(old start, new start, width) of each feature the old observation had."""
+def _column_map(old_features, new_features, old_stack: int = 1) -> list[tuple[int, int, int]]:
+    """(old start, new start, width) of each feature the old observation had, in each of its
+    ``old_stack`` stacked observations (newest first: the new run's first ones; its older
+    ones, if it stacks more, are new inputs)."""
     new = {f: start for f, start, _ in obs_layout(new_features)}
-    return [(start, new[f], stop - start) for f, start, stop in obs_layout(old_features)]
+    old_layout = obs_layout(old_features)
+    old_base, new_base = old_layout[-1][2], obs_layout(new_features)[-1][2]
+    return [(k * old_base + start, k * new_base + new[f], stop - start)
+            for k in range(old_stack) for f, start, stop in old_layout]
 
 
 def warm_start(model, template: str, config) -> dict:
@@ -73,7 +82,8 @@ def warm_start(model, template: str, config) -> dict:
     if set(state) != set(target):
         raise UserError(f"--init-from {path}: its tensors ({len(state)}) are not this run's "
                         f"policy's ({len(target)}): another architecture")
-    cols = _column_map(side["env_config"]["obs_features"], config.env.obs_features)
+    cols = _column_map(side["env_config"]["obs_features"], config.env.obs_features,
+                       side["env_config"].get("obs_stack", 1))
     with torch.no_grad():
         for name, value in state.items():
             if name in FIRST_LAYERS:
