@@ -435,6 +435,11 @@ def table_steps() -> list[Step]:
     steps += _five_seeds(apart, curv)
     steps.append(_deploy_studies(curv, apart, f"results/studies/{apart}/test1000",
                                  ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
+    # ... the recent actions with the last 4 observations stacked, against the recent actions
+    stack = "deploy_large_batch_curv10_actions_stack4_continued_5m"
+    steps += _five_seeds(stack, act)
+    steps.append(_deploy_studies(act, stack, f"results/studies/{stack}/test1000",
+                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
     # the hardware model: every row on all 1,000 test seeds
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",

@@ -442,16 +442,6 @@ PRESETS.update([
             **{**DEPLOY_LARGE_BATCH,
                "env": dict(DEPLOY_LARGE_BATCH["env"], split_conditions=True)},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
-    # ... both: the recent actions observed and latency and noise drawn apart. Control: the
-    # recent-actions study (same start, budget and inputs; the world's draw alone differs).
-    _preset("deploy_large_batch_curv10_split_actions_continued",
-            "deploy_large_batch_curv10_actions_continued with latency alone, noise alone or both "
-            "in the randomised episodes (split_conditions; 43-D)",
-            **{**DEPLOY_LARGE_BATCH,
-               "env": dict(DEPLOY_LARGE_BATCH["env"], split_conditions=True,
-                           obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
-                           + ("recent_actions",))},
-            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # ... with the last 4 observations stacked as well (obs_stack 4, the 3 older ones new
     # inputs at zero weight): with its recent outputs and its recent inputs a memoryless
     # network can act as a compensator of a few steps' order, which is what a feedback lead
