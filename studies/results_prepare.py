@@ -80,6 +80,9 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
           "deploy_large_batch_curv10_actions_10m": (
               "deploy_large_batch_curv10_actions_continued_5m",
               ["deploy_large_batch_curv10_actions_continued_5m"]),
+          "deploy_large_batch_curv10_actions_stack4_10m": (
+              "deploy_large_batch_curv10_actions_stack4_continued_5m",
+              ["deploy_large_batch_curv10_actions_stack4_continued_5m"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
                                     ["v5_err_decay_preview_continued_5m"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",

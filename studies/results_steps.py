@@ -33,7 +33,8 @@ ROBUST = "v5_err_decay"  # the model the multi-model latency/noise tables measur
 BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_5m",
                 "deploy_large_batch_wide_5m", "deploy_large_batch_continued_5m",
                 "v5_err_decay_preview_continued_5m", "deploy_large_batch_curv10_continued_5m",
-                "deploy_large_batch_curv10_actions_continued_5m"}
+                "deploy_large_batch_curv10_actions_continued_5m",
+                "deploy_large_batch_curv10_actions_stack4_continued_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -440,6 +441,12 @@ def table_steps() -> list[Step]:
     steps += _five_seeds(stack, act)
     steps.append(_deploy_studies(act, stack, f"results/studies/{stack}/test1000",
                                  ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
+    # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
+    # under noise, against the hardware model: every row on all 1,000 test seeds
+    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip",
+                          f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
+                         f"results/studies/{stack}/lowpass1000", EVERY_ROW,
+                         "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
     # the hardware model: every row on all 1,000 test seeds
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",
