@@ -127,6 +127,15 @@ def _five_seeds(study: str, against: str) -> list[Step]:
             _deploy(models, f"results/studies/{study}")]
 
 
+def _study_against(study: str, control: str) -> list[Step]:
+    """A five-seed deployment study against its control: _five_seeds, and both studies' ten
+    seeds' acceptance on all 1,000 test seeds without delay and at 1 and 3 steps of latency
+    (two-level bootstrap, checked from 0.5 and 0.75 s: results/studies/<study>/test1000/)."""
+    return _five_seeds(study, control) + [
+        _deploy_studies(control, study, f"results/studies/{study}/test1000",
+                        ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75")]
+
+
 def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
     return Step((f"{out_dir}/{question}.md", f"{out_dir}/{question}.png"),
                 ("studies/robustness.py", "--question", question, "--models", *models,
@@ -421,38 +430,29 @@ def table_steps() -> list[Step]:
         f"{a}seeds/deploy_large_batch_curv10_late{w}_continued_5m_s2.zip" for w in (30, 100)]
     steps.append(_deploy(late, f"results/studies/{curv}/late_pilots_selection500",
                          ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
-    steps += _five_seeds(curv, cont)
-    steps.append(_deploy_studies(cont, curv, f"results/studies/{curv}/test1000",
-                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
+    steps += _study_against(curv, cont)
     # ... with the policy's own last actions observed, undelayed (recent_actions), from the
     # same start and budget: against curv10, and all ten seeds' acceptance on the test seeds
     act = "deploy_large_batch_curv10_actions_continued_5m"
-    steps += _five_seeds(act, curv)
-    steps.append(_deploy_studies(curv, act, f"results/studies/{act}/test1000",
-                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
-    # ... with latency and noise drawn apart in training (split_conditions), from the same
-    # start and budget: against curv10, and all ten seeds' acceptance on the test seeds
-    apart = "deploy_large_batch_curv10_split_continued_5m"
-    steps += _five_seeds(apart, curv)
-    steps.append(_deploy_studies(curv, apart, f"results/studies/{apart}/test1000",
-                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
-    # ... the recent actions with the last 4 observations stacked, against the recent actions
-    stack = "deploy_large_batch_curv10_actions_stack4_continued_5m"
-    steps += _five_seeds(stack, act)
-    steps.append(_deploy_studies(act, stack, f"results/studies/{stack}/test1000",
-                                 ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75"))
-    # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
-    # under noise, against the hardware model: every row on all 1,000 test seeds
-    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip",
-                          f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
-                         f"results/studies/{stack}/lowpass1000", EVERY_ROW,
-                         "0-999", "--check-from", "0.75"))
+    steps += _study_against(act, curv)
     # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
     # the hardware model: every row on all 1,000 test seeds
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",
                           f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
                          f"results/studies/{act}/lowpass1000",
                          EVERY_ROW,
+                         "0-999", "--check-from", "0.75"))
+    # ... with latency and noise drawn apart in training (split_conditions), from the same
+    # start and budget: against curv10
+    steps += _study_against("deploy_large_batch_curv10_split_continued_5m", curv)
+    # ... the recent actions with the last 4 observations stacked, against the recent actions
+    stack = "deploy_large_batch_curv10_actions_stack4_continued_5m"
+    steps += _study_against(stack, act)
+    # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
+    # under noise, against the hardware model: every row on all 1,000 test seeds
+    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip",
+                          f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
+                         f"results/studies/{stack}/lowpass1000", EVERY_ROW,
                          "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
