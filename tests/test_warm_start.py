@@ -104,6 +104,16 @@ def test_a_run_that_stacks_more_observations_starts_as_its_model_on_the_newest()
         vec.close()
 
 
+def test_a_model_that_stacks_more_than_the_run_is_one_line():
+    stacked = str(ROOT / "archive" / "seeds" /
+                  "deploy_large_batch_curv10_actions_stack4_continued_5m_s{seed}.zip")
+    features = tuple(load_policy(stacked.format(seed=1))[1]["obs_features"])
+    config = TrainConfig(env=EnvConfig(obs_features=features, obs_stack=2), init_from=stacked,
+                         seed=1)
+    with pytest.raises(UserError, match="it stacks 4 observations, this run 2"):
+        check_init_from(config.init_from, config.seed, config)
+
+
 @pytest.mark.parametrize("features, kw, words", [
     (OBS_15 + ("tip_error",), dict(net_arch=(256, 256)), "net_arch is [64, 64]"),
     (OBS_15, {}, "it observes tip_error, which this run does not"),

@@ -33,6 +33,9 @@ HEADLINE_SEEDS = "archive/seeds/v5_err_decay_kept_s{seed}.zip"
 DEPLOY_LARGE_BATCH = dict(env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
                           lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0,
                           n_envs=256, batch_size=8192)
+# ... with the policy's own recent actions observed (its recent-actions presets' world)
+DEPLOY_ACTIONS_ENV = dict(DEPLOY_LARGE_BATCH["env"], obs_features=DEPLOY_LARGE_BATCH["env"]
+                          ["obs_features"] + ("recent_actions",))
 # ... with nine nominal episodes in ten (its variants at 64x64 and 256x256 networks)
 DEPLOY_LARGE_BATCH_N90 = {**DEPLOY_LARGE_BATCH,
                           "env": dict(DEPLOY_LARGE_BATCH["env"], nominal_share=0.9)}
@@ -426,10 +429,7 @@ PRESETS.update([
     # Control: curv10 (same start, budget and world).
     _preset("deploy_large_batch_curv10_actions_continued", "deploy_large_batch_curv10_continued "
             "with the last 6 actions observed, not delayed (recent_actions; 43-D)",
-            **{**DEPLOY_LARGE_BATCH,
-               "env": dict(DEPLOY_LARGE_BATCH["env"],
-                           obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
-                           + ("recent_actions",))},
+            **{**DEPLOY_LARGE_BATCH, "env": DEPLOY_ACTIONS_ENV},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # ... with latency and noise drawn apart (EnvConfig.split_conditions): in curv10's world
     # a randomised episode is always both delayed and noisy, so latency without noise, the
@@ -450,10 +450,7 @@ PRESETS.update([
     _preset("deploy_large_batch_curv10_actions_stack4_continued",
             "deploy_large_batch_curv10_actions_continued with the last 4 observations stacked "
             "(obs_stack 4; 4 x 43-D)",
-            **{**DEPLOY_LARGE_BATCH,
-               "env": dict(DEPLOY_LARGE_BATCH["env"], obs_stack=4,
-                           obs_features=DEPLOY_LARGE_BATCH["env"]["obs_features"]
-                           + ("recent_actions",))},
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=4)},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next

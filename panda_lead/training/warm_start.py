@@ -62,9 +62,9 @@ def _column_map(old_features, new_features, old_stack: int = 1) -> list[tuple[in
     """(old start, new start, width) of each feature the old observation had, in each of its
     ``old_stack`` stacked observations (newest first: the new run's first ones; its older
     ones, if it stacks more, are new inputs)."""
-    new = {f: start for f, start, _ in obs_layout(new_features)}
-    old_layout = obs_layout(old_features)
-    old_base, new_base = old_layout[-1][2], obs_layout(new_features)[-1][2]
+    old_layout, new_layout = obs_layout(old_features), obs_layout(new_features)
+    new = {f: start for f, start, _ in new_layout}
+    old_base, new_base = old_layout[-1][2], new_layout[-1][2]
     return [(k * old_base + start, k * new_base + new[f], stop - start)
             for k in range(old_stack) for f, start, stop in old_layout]
 
