@@ -452,6 +452,15 @@ PRESETS.update([
             "(obs_stack 4; 4 x 43-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=4)},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+    # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
+    # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
+    # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
+    # start, budget and world. Control: the 4-stack study.
+    _preset("deploy_large_batch_curv10_actions_stack8_continued",
+            "deploy_large_batch_curv10_actions_continued with the last 8 observations stacked "
+            "(obs_stack 8; 8 x 43-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=8)},
+            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
