@@ -32,7 +32,8 @@ LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_lar
                "deploy_large_batch_curv10_continued_5m",
                "deploy_large_batch_curv10_actions_continued_5m",
                "deploy_large_batch_curv10_split_continued_5m",
-               "deploy_large_batch_curv10_actions_stack4_continued_5m")
+               "deploy_large_batch_curv10_actions_stack4_continued_5m",
+               "deploy_large_batch_curv10_actions_stack8_continued_5m")
 # single-seed pilots (seed 2, the hardware model's), every seed kept: the curvature term's weight
 CURVATURE_PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
                     "deploy_large_batch_curv100_continued_5m")

@@ -34,7 +34,8 @@ BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_
                 "deploy_large_batch_wide_5m", "deploy_large_batch_continued_5m",
                 "v5_err_decay_preview_continued_5m", "deploy_large_batch_curv10_continued_5m",
                 "deploy_large_batch_curv10_actions_continued_5m",
-                "deploy_large_batch_curv10_actions_stack4_continued_5m"}
+                "deploy_large_batch_curv10_actions_stack4_continued_5m",
+                "deploy_large_batch_curv10_actions_stack8_continued_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -448,6 +449,8 @@ def table_steps() -> list[Step]:
     # ... the recent actions with the last 4 observations stacked, against the recent actions
     stack = "deploy_large_batch_curv10_actions_stack4_continued_5m"
     steps += _study_against(stack, act)
+    # ... with 8 observations stacked instead of 4, against the 4-stack
+    steps += _study_against("deploy_large_batch_curv10_actions_stack8_continued_5m", stack)
     # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
     # under noise, against the hardware model: every row on all 1,000 test seeds
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip",
