@@ -43,6 +43,9 @@ DEPLOY_LARGE_BATCH_N90 = {**DEPLOY_LARGE_BATCH,
 # deploy_large_batch's five trained seeds (5M steps each): what its continued presets start
 # from, seed by seed (TrainConfig.init_from)
 LARGE_BATCH_SEEDS = "archive/seeds/deploy_large_batch_5m_s{seed}.zip"
+# the 4-stack study's five trained seeds (deploy_large_batch_curv10_actions_stack4_continued,
+# 5M steps on top of LARGE_BATCH_SEEDS)
+STACK4_SEEDS = "archive/seeds/deploy_large_batch_curv10_actions_stack4_continued_5m_s{seed}.zip"
 # ... continued with gSDE exploration at ~1.2 cm (issue 36)
 SDE_CONTINUED = dict(init_from=LARGE_BATCH_SEEDS, use_sde=True, log_std_init=-3.7)
 
@@ -452,6 +455,15 @@ PRESETS.update([
             "(obs_stack 4; 4 x 43-D)",
             **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=4)},
             caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+    # ... the 4-stack's five trained seeds trained 5M steps more with the same preset (15M in
+    # all): its best evaluations came at 3.8-4.9M of its 5M steps, still improving, and 172
+    # inputs at zero weight may need more samples than 25 did. Control: the 4-stack seeds it
+    # starts from (a budget question, not a like-for-like study).
+    _preset("deploy_large_batch_curv10_actions_stack4_continued_again",
+            "deploy_large_batch_curv10_actions_stack4_continued trained on from its own trained "
+            "seeds (obs_stack 4; 4 x 43-D)",
+            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=4)},
+            caps_curvature=10.0, init_from=STACK4_SEEDS),
     # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
     # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
     # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
