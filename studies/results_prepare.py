@@ -34,9 +34,11 @@ LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_lar
                "deploy_large_batch_curv10_split_continued_5m",
                "deploy_large_batch_curv10_actions_stack4_continued_5m",
                "deploy_large_batch_curv10_actions_stack8_continued_5m")
-# single-seed pilots (seed 2, the hardware model's), every seed kept: the curvature term's weight
-CURVATURE_PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
-                    "deploy_large_batch_curv100_continued_5m")
+# issue 36's pilots, every seed kept: the curvature term's weight (seed 2, the hardware model's)
+PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
+          "deploy_large_batch_curv100_continued_5m",
+          # ... and the 4-stack trained on (seeds 2 and 4)
+          "deploy_large_batch_curv10_actions_stack4_continued_again_5m")
 # the headline study's seeds trained on, with and without the path ahead (issue 37; 5M steps
 # on top of v5_err_decay_kept's, train.py --init-from)
 CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m")
@@ -49,7 +51,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
               "v5_err_decay_actions_5m",
-              *LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS]
+              *LARGE_BATCH, *CONTINUED, *PILOTS]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
@@ -96,7 +98,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
         "v5_err_decay_kept": "v5_err_decay_kept", "v5_err_decay_actions_5m": "v5_err_decay_actions_5m",
-        **{s: s for s in (*LARGE_BATCH, *CONTINUED, *CURVATURE_PILOTS)
+        **{s: s for s in (*LARGE_BATCH, *CONTINUED, *PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
         **{s: f"{s}*" for s in LARGE_BATCH if s in EXTRA_SEEDS}}

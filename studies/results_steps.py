@@ -451,6 +451,12 @@ def table_steps() -> list[Step]:
     steps += _study_against(stack, act)
     # ... with 8 observations stacked instead of 4, against the 4-stack
     steps += _study_against("deploy_large_batch_curv10_actions_stack8_continued_5m", stack)
+    # ... the 4-stack's seeds 2 and 4 trained 5M steps more (pilots): beside their starts on
+    # 500 selection seeds (never a test seed)
+    again = "deploy_large_batch_curv10_actions_stack4_continued_again_5m"
+    steps.append(_deploy([f"{a}seeds/{name}_s{k}.zip" for k in (2, 4) for name in (stack, again)],
+                         f"results/studies/{again}/pilots_selection500",
+                         ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
     # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
     # under noise, against the hardware model: every row on all 1,000 test seeds
     steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip",
