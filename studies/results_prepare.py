@@ -33,12 +33,11 @@ LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_lar
                "deploy_large_batch_curv10_actions_continued_5m",
                "deploy_large_batch_curv10_split_continued_5m",
                "deploy_large_batch_curv10_actions_stack4_continued_5m",
-               "deploy_large_batch_curv10_actions_stack8_continued_5m")
-# issue 36's pilots, every seed kept: the curvature term's weight (seed 2, the hardware model's)
+               "deploy_large_batch_curv10_actions_stack8_continued_5m",
+               "deploy_large_batch_curv10_actions_stack4_continued_again_5m")
+# single-seed pilots (seed 2, the hardware model's), every seed kept: the curvature term's weight
 PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
-          "deploy_large_batch_curv100_continued_5m",
-          # ... and the 4-stack trained on (seeds 2 and 4)
-          "deploy_large_batch_curv10_actions_stack4_continued_again_5m")
+          "deploy_large_batch_curv100_continued_5m")
 # the headline study's seeds trained on, with and without the path ahead (issue 37; 5M steps
 # on top of v5_err_decay_kept's, train.py --init-from)
 CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m")
@@ -58,6 +57,8 @@ EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                "deploy_caps_armfilter_5m": ["deploy_caps_armfilter_5m_rest"],
                "deploy_large_batch_curv10_continued_5m": [
                    "deploy_large_batch_curv10_continued_5m_rest"],
+               "deploy_large_batch_curv10_actions_stack4_continued_again_5m": [
+                   "deploy_large_batch_curv10_actions_stack4_continued_again_5m_rest"],
                **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
                                             PRESET_STUDY, "ikfree_5m"]}}
 # archived name -> (study, sweep folders holding its runs)
@@ -86,6 +87,10 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
           "deploy_large_batch_curv10_actions_stack4_10m": (
               "deploy_large_batch_curv10_actions_stack4_continued_5m",
               ["deploy_large_batch_curv10_actions_stack4_continued_5m"]),
+          "deploy_large_batch_curv10_actions_stack4_15m": (
+              "deploy_large_batch_curv10_actions_stack4_continued_again_5m",
+              ["deploy_large_batch_curv10_actions_stack4_continued_again_5m",
+               "deploy_large_batch_curv10_actions_stack4_continued_again_5m_rest"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
                                     ["v5_err_decay_preview_continued_5m"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",

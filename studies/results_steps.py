@@ -35,7 +35,8 @@ BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_
                 "v5_err_decay_preview_continued_5m", "deploy_large_batch_curv10_continued_5m",
                 "deploy_large_batch_curv10_actions_continued_5m",
                 "deploy_large_batch_curv10_actions_stack4_continued_5m",
-                "deploy_large_batch_curv10_actions_stack8_continued_5m"}
+                "deploy_large_batch_curv10_actions_stack8_continued_5m",
+                "deploy_large_batch_curv10_actions_stack4_continued_again_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -451,9 +452,16 @@ def table_steps() -> list[Step]:
     steps += _study_against(stack, act)
     # ... with 8 observations stacked instead of 4, against the 4-stack
     steps += _study_against("deploy_large_batch_curv10_actions_stack8_continued_5m", stack)
-    # ... the 4-stack's seeds 2 and 4 trained 5M steps more (pilots): beside their starts on
-    # 500 selection seeds (never a test seed)
+    # ... the 4-stack's five seeds trained 5M steps more: against their starts, and its pilots
+    # (seeds 2 and 4, the first trained) beside their starts on 500 selection seeds
     again = "deploy_large_batch_curv10_actions_stack4_continued_again_5m"
+    steps += _study_against(again, stack)
+    # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
+    # the hardware model: every row on all 1,000 test seeds
+    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_15m_lp10.zip",
+                          f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip"],
+                         f"results/studies/{again}/lowpass1000", EVERY_ROW,
+                         "0-999", "--check-from", "0.75"))
     steps.append(_deploy([f"{a}seeds/{name}_s{k}.zip" for k in (2, 4) for name in (stack, again)],
                          f"results/studies/{again}/pilots_selection500",
                          ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
