@@ -138,6 +138,14 @@ def _study_against(study: str, control: str) -> list[Step]:
                         ("none", "delay1", "delay3"), "0-999", "--check-from", "0.75")]
 
 
+def _every_row(study: str, model: str, previous: str) -> Step:
+    """An archived model beside the one it would replace, every deployment row on all 1,000
+    test seeds (results/studies/<study>/lowpass1000/)."""
+    return _deploy([f"archive/{model}.zip", f"archive/{previous}.zip"],
+                   f"results/studies/{study}/lowpass1000", EVERY_ROW, "0-999",
+                   "--check-from", "0.75")
+
+
 def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
     return Step((f"{out_dir}/{question}.md", f"{out_dir}/{question}.png"),
                 ("studies/robustness.py", "--question", question, "--models", *models,
@@ -439,46 +447,36 @@ def table_steps() -> list[Step]:
     steps += _study_against(act, curv)
     # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
     # the hardware model: every row on all 1,000 test seeds
-    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_10m_lp10.zip",
-                          f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
-                         f"results/studies/{act}/lowpass1000",
-                         EVERY_ROW,
-                         "0-999", "--check-from", "0.75"))
+    steps.append(_every_row(act, "deploy_large_batch_curv10_actions_10m_lp10",
+                            "deploy_large_batch_curv10_10m_lp10"))
     # ... with latency and noise drawn apart in training (split_conditions), from the same
     # start and budget: against curv10
     steps += _study_against("deploy_large_batch_curv10_split_continued_5m", curv)
     # ... the recent actions with the last 4 observations stacked, against the recent actions
     stack = "deploy_large_batch_curv10_actions_stack4_continued_5m"
     steps += _study_against(stack, act)
+    # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
+    # under noise, against the hardware model: every row on all 1,000 test seeds
+    steps.append(_every_row(stack, "deploy_large_batch_curv10_actions_stack4_10m_lp10",
+                            "deploy_large_batch_curv10_10m_lp10"))
     # ... with 8 observations stacked instead of 4, against the 4-stack
     steps += _study_against("deploy_large_batch_curv10_actions_stack8_continued_5m", stack)
-    # ... the 4-stack's five seeds trained 5M steps more: against their starts, and its pilots
-    # (seeds 2 and 4, the first trained) beside their starts on 500 selection seeds
+    # ... the 4-stack's five seeds trained 5M steps more: against their starts; its chosen seed
+    # (the selection rule) with the same 10 Hz low-pass under noise beside the 4-stack's, every
+    # row on all 1,000 test seeds; and its pilots (seeds 2 and 4, the first trained) beside
+    # their starts on 500 selection seeds
     again = "deploy_large_batch_curv10_actions_stack4_continued_again_5m"
     steps += _study_against(again, stack)
-    # ... its chosen seed (the selection rule) with the same 10 Hz low-pass under noise, against
-    # the hardware model: every row on all 1,000 test seeds
-    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_15m_lp10.zip",
-                          f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip"],
-                         f"results/studies/{again}/lowpass1000", EVERY_ROW,
-                         "0-999", "--check-from", "0.75"))
+    steps.append(_every_row(again, "deploy_large_batch_curv10_actions_stack4_15m_lp10",
+                            "deploy_large_batch_curv10_actions_stack4_10m_lp10"))
     steps.append(_deploy([f"{a}seeds/{name}_s{k}.zip" for k in (2, 4) for name in (stack, again)],
                          f"results/studies/{again}/pilots_selection500",
                          ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
-    # ... its chosen seed (the selection rule: seed 2) with the hardware model's 10 Hz low-pass
-    # under noise, against the hardware model: every row on all 1,000 test seeds
-    steps.append(_deploy([f"{a}deploy_large_batch_curv10_actions_stack4_10m_lp10.zip",
-                          f"{a}deploy_large_batch_curv10_10m_lp10.zip"],
-                         f"results/studies/{stack}/lowpass1000", EVERY_ROW,
-                         "0-999", "--check-from", "0.75"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
     # on all 1,000 test seeds, the noise rows against the filtered rival
-    steps.append(_deploy([f"{a}deploy_large_batch_curv10_10m_lp10.zip",
-                          f"{a}deploy_large_batch_10m_lp10.zip"],
-                         f"results/studies/{curv}/lowpass1000",
-                         EVERY_ROW,
-                         "0-999", "--check-from", "0.75"))
+    steps.append(_every_row(curv, "deploy_large_batch_curv10_10m_lp10",
+                            "deploy_large_batch_10m_lp10"))
     # ... and its five seeds' noise rows at the same 10 Hz (not re-tuned per seed)
     steps.append(_deploy([f"{a}seeds/{curv}_s{k}.zip" for k in range(1, 6)],
                          f"results/studies/{curv}/lowpass", ("noise1", "noise2"), "0-99",

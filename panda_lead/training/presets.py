@@ -50,6 +50,13 @@ STACK4_SEEDS = "archive/seeds/deploy_large_batch_curv10_actions_stack4_continued
 SDE_CONTINUED = dict(init_from=LARGE_BATCH_SEEDS, use_sde=True, log_std_init=-3.7)
 
 
+def _with_memory(stack: int) -> dict:
+    """curv10's config with the policy's recent actions observed and the last ``stack``
+    observations stacked: the recent-actions presets (stack 1) and their stacked variants."""
+    return {**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=stack),
+            "caps_curvature": 10.0}
+
+
 def _limit_lead(w_limit: float) -> dict:
     """deploy_large_batch with the limit term on what the lead adds (limit_lead_only)."""
     return {**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=w_limit,
@@ -432,8 +439,7 @@ PRESETS.update([
     # Control: curv10 (same start, budget and world).
     _preset("deploy_large_batch_curv10_actions_continued", "deploy_large_batch_curv10_continued "
             "with the last 6 actions observed, not delayed (recent_actions; 43-D)",
-            **{**DEPLOY_LARGE_BATCH, "env": DEPLOY_ACTIONS_ENV},
-            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+            **_with_memory(1), init_from=LARGE_BATCH_SEEDS),
     # ... with latency and noise drawn apart (EnvConfig.split_conditions): in curv10's world
     # a randomised episode is always both delayed and noisy, so latency without noise, the
     # deployment table's latency rows, reaches the policy only where the noise factor is drawn
@@ -452,27 +458,21 @@ PRESETS.update([
     # swing without lowering it where it tracks. Control: the recent-actions study.
     _preset("deploy_large_batch_curv10_actions_stack4_continued",
             "deploy_large_batch_curv10_actions_continued with the last 4 observations stacked "
-            "(obs_stack 4; 4 x 43-D)",
-            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=4)},
-            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+            "(obs_stack 4; 4 x 43-D)", **_with_memory(4), init_from=LARGE_BATCH_SEEDS),
     # ... the 4-stack's five trained seeds trained 5M steps more with the same preset (15M in
     # all): its best evaluations came at 3.8-4.9M of its 5M steps, still improving, and 172
     # inputs at zero weight may need more samples than 25 did. Control: the 4-stack seeds it
     # starts from (a budget question, not a like-for-like study).
     _preset("deploy_large_batch_curv10_actions_stack4_continued_again",
             "deploy_large_batch_curv10_actions_stack4_continued trained on from its own trained "
-            "seeds (obs_stack 4; 4 x 43-D)",
-            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=4)},
-            caps_curvature=10.0, init_from=STACK4_SEEDS),
+            "seeds (obs_stack 4; 4 x 43-D)", **_with_memory(4), init_from=STACK4_SEEDS),
     # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
     # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
     # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
     # start, budget and world. Control: the 4-stack study.
     _preset("deploy_large_batch_curv10_actions_stack8_continued",
             "deploy_large_batch_curv10_actions_continued with the last 8 observations stacked "
-            "(obs_stack 8; 8 x 43-D)",
-            **{**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_ACTIONS_ENV, obs_stack=8)},
-            caps_curvature=10.0, init_from=LARGE_BATCH_SEEDS),
+            "(obs_stack 8; 8 x 43-D)", **_with_memory(8), init_from=LARGE_BATCH_SEEDS),
     # Issue 37, a labelled variant that KNOWS THE PLANNED PATH (never ranked with the causal
     # presets): the headline's configuration plus the target's future positions over the next
     # 0.05-0.3 s (config.OBS_SCALE's target_preview; 36-D).
