@@ -14,6 +14,8 @@ makes.
     uv run studies/deploy_probes.py lead-excess  # what a lead adds to a zero lead's, by condition
     uv run studies/deploy_probes.py lost-paths --models \\
         archive/deploy_large_batch_curv10_10m_lp10.zip --on-selection 300  # where the arm rejects
+    uv run studies/deploy_probes.py stack-weights --models \
+        archive/seeds/deploy_large_batch_curv10_actions_stack8_continued_5m_s1.zip  # per input
 
 Each prints a few lines; about a minute each on the 2-core AMD EPYC.
 """
@@ -37,12 +39,13 @@ from panda_lead.errors import UserError, exit_on_user_error
 @dataclass
 class Args:
     probe: tyro.conf.Positional[Literal["rival-lowpass", "margins", "limit-excess",
-                                        "limit-exploration", "lead-excess", "lost-paths"]]
+                                        "limit-exploration", "lead-excess", "lost-paths",
+                                        "stack-weights"]]
     """Which probe to run."""
     models: list[Path] = field(
         default_factory=lambda: [Path("archive/deploy_large_batch_10m.zip")])
     """margins: the models beside the analytic leads; limit-excess, limit-exploration,
-    lead-excess: the first is played."""
+    lead-excess: the first is played; stack-weights: the models whose weights are read."""
     conditions: list[str] = field(default_factory=lambda: ["delay1"])
     """margins: the conditions (studies/deploy.py's names)."""
     lead_filter_hz: list[float] = field(default_factory=lambda: [0.0])
@@ -227,6 +230,25 @@ def lost_paths(args: Args, steps: int, seeds: list[int]) -> None:
                   flush=True)
 
 
+def stack_weights(args: Args) -> None:
+    """How much each stacked observation weighs in the policy's first layer: the norm of its
+    columns, newest observation first, the mean over the models (which stack alike). Plays
+    nothing; reads the weights."""
+    from panda_lead.models import load_policy
+
+    norms, stack = [], None
+    for m in args.models:
+        policy, env, _ = load_policy(m)
+        if stack not in (None, env.get("obs_stack", 1)):
+            raise UserError(f"{m} stacks {env.get('obs_stack', 1)} observations, the models "
+                            f"before it {stack}: pass models that stack alike")
+        stack = env.get("obs_stack", 1)
+        w = policy.mlp_extractor.policy_net[0].weight.detach().numpy()
+        norms.append(np.linalg.norm(w.reshape(w.shape[0], stack, -1), axis=(0, 2)))
+    print(f"{len(norms)} models, {stack} stacked observations, first-layer column norm per "
+          f"observation (newest first): {' / '.join(f'{n:.1f}' for n in np.mean(norms, 0))}")
+
+
 @exit_on_user_error
 def main(args: Args) -> None:
     from panda_lead.core import control_dt
@@ -252,6 +274,8 @@ def main(args: Args) -> None:
         limit_exploration(args, seeds)
     elif args.probe == "lost-paths":
         lost_paths(args, steps, seeds)
+    elif args.probe == "stack-weights":
+        stack_weights(args)
     else:
         lead_excess(args, seeds)
 

@@ -152,6 +152,28 @@ def test_the_probes_refuse_a_missing_model_and_an_unknown_condition(tmp_path, ca
         assert err.startswith("error: ") and words in err and err.count("\n") == 1, err
 
 
+def test_stack_weights_reads_one_norm_per_stacked_observation_and_refuses_mixed_stacks(capsys):
+    spec = importlib.util.spec_from_file_location("deploy_probes",
+                                                  ROOT / "studies" / "deploy_probes.py")
+    probes = importlib.util.module_from_spec(spec)
+    sys.modules["deploy_probes"] = probes
+    spec.loader.exec_module(probes)
+    seeds = ROOT / "archive" / "seeds"
+    four = seeds / "deploy_large_batch_curv10_actions_stack4_continued_5m_s1.zip"
+    eight = seeds / "deploy_large_batch_curv10_actions_stack8_continued_5m_s1.zip"
+    probes.main(probes.Args("stack-weights", models=[four]))
+    line = capsys.readouterr().out.strip()
+    norms = [float(x) for x in line.split(": ")[-1].split(" / ")]
+    # four norms, the newest observation (the start's weights) above each older, new one
+    assert "4 stacked observations" in line and len(norms) == 4
+    assert norms[0] > max(norms[1:]) > 0
+    with pytest.raises(SystemExit) as exc:
+        probes.main(probes.Args("stack-weights", models=[four, eight]))
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "stacks 8 observations, the models before it 4" in err and err.count("\n") == 1, err
+
+
 def test_noise_condition_reaches_the_tip_error():
     """Under the study's 1 cm condition the tip error a learned lead observes is the tip
     reading minus the target reading: the difference of the ee_pos and target_pos features it
