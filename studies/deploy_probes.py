@@ -14,10 +14,10 @@ makes.
     uv run studies/deploy_probes.py lead-excess  # what a lead adds to a zero lead's, by condition
     uv run studies/deploy_probes.py lost-paths --models \\
         archive/deploy_large_batch_curv10_10m_lp10.zip --on-selection 300  # where the arm rejects
-    uv run studies/deploy_probes.py stack-weights --models \
+    uv run studies/deploy_probes.py stack-weights --models \\
         archive/seeds/deploy_large_batch_curv10_actions_stack8_continued_5m_s1.zip  # per input
 
-Each prints a few lines; about a minute each on the 2-core AMD EPYC.
+Each prints a few lines; about a minute each on the 2-core AMD EPYC (stack-weights: seconds).
 """
 
 from __future__ import annotations
