@@ -46,6 +46,9 @@ LARGE_BATCH_SEEDS = "archive/seeds/deploy_large_batch_5m_s{seed}.zip"
 # the 4-stack study's five trained seeds (deploy_large_batch_curv10_actions_stack4_continued,
 # 5M steps on top of LARGE_BATCH_SEEDS)
 STACK4_SEEDS = "archive/seeds/deploy_large_batch_curv10_actions_stack4_continued_5m_s{seed}.zip"
+# ... the same five trained 5M steps more (15M in all; the hardware model's study)
+STACK4_15M_SEEDS = ("archive/seeds/deploy_large_batch_curv10_actions_stack4_continued_again_5m_"
+                    "s{seed}.zip")
 # ... continued with gSDE exploration at ~1.2 cm (issue 36)
 SDE_CONTINUED = dict(init_from=LARGE_BATCH_SEEDS, use_sde=True, log_std_init=-3.7)
 
@@ -466,6 +469,17 @@ PRESETS.update([
     _preset("deploy_large_batch_curv10_actions_stack4_continued_again",
             "deploy_large_batch_curv10_actions_stack4_continued trained on from its own trained "
             "seeds (obs_stack 4; 4 x 43-D)", **_with_memory(4), init_from=STACK4_SEEDS),
+    # ... and 5M steps more again (20M in all), gently: a warm start draws its exploration
+    # afresh at log_std_init (-1.0, std 0.37) where the trained seeds' is -2.3 to -2.6 (std
+    # 0.07-0.10), and restarts Adam at lr 1e-3; each 15M seed's evaluation error jumped from
+    # ~2.3 to 2.7-2.9 cm in its first 150k steps and spent much of its budget climbing back.
+    # Here the exploration starts where the trained seeds' ended and the step is a third.
+    # Control: the 15M seeds it starts from (the hardware model's study).
+    _preset("deploy_large_batch_curv10_actions_stack4_finetuned",
+            "deploy_large_batch_curv10_actions_stack4_continued_again trained on from its own "
+            "trained seeds at their own exploration (log_std_init -2.45) and lr 3e-4 "
+            "(obs_stack 4; 4 x 43-D)", **{**_with_memory(4), "learning_rate": 3e-4},
+            log_std_init=-2.45, init_from=STACK4_15M_SEEDS),
     # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
     # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
     # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
