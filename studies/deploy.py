@@ -468,12 +468,12 @@ def _commit() -> str:
 def figure(args: Args, rows: list[dict], seeds: list[int], path: Path) -> None:
     """Mean error against mean tip jerk: one point per controller per condition, 95% CIs of
     the error; a controller's points joined in condition order. Lower left is better."""
-    from panda_lead.metrics.figures import colours_for, pyplot, save_figure
+    from panda_lead.metrics.figures import family_colours, pyplot, save_figure
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(13, 6.5), constrained_layout=True)
     names = list(dict.fromkeys(r["name"] for r in rows))
-    colours = colours_for(names)  # the baselines keep the repo's colours
+    colours = family_colours(names)  # a study's seeds one hue; the baselines the repo's colours
     for name in names:
         pts = [r for r in rows if r["name"] == name]
         x = [r["jerk"].mean_b for r in pts]

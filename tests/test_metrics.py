@@ -381,6 +381,28 @@ def test_seed_set_titles_and_colours():
     assert len({to_hex(many[f"model {i}"]) for i in range(15)}) == 15
 
 
+def test_family_colours_give_a_study_one_hue_and_its_seeds_shades():
+    from colorsys import rgb_to_hsv
+
+    from matplotlib.colors import to_rgb
+
+    labels = ["Classical", "Analytic", *(f"stack4_s{i}" for i in range(1, 6)),
+              *(f"stack8_s{i}" for i in range(1, 6)), "Analytic+predict"]
+    c = figures.family_colours(labels)
+    assert len({tuple(round(v, 4) for v in c[lab]) for lab in labels}) == len(labels)
+    assert c["Classical"] == to_rgb(figures.COLOURS["Classical"])
+    hue = {lab: rgb_to_hsv(*c[lab])[0] for lab in labels}
+    for study in ("stack4", "stack8"):
+        seeds = [hue[f"{study}_s{i}"] for i in range(1, 6)]
+        assert max(seeds) - min(seeds) < 0.01  # one hue ...
+        light = [sum(c[f"{study}_s{i}"]) for i in range(1, 6)]
+        assert light == sorted(light)  # ... from dark to light in the order given
+    # two studies and the baselines: hues apart, not shades of each other
+    assert abs(hue["stack4_s1"] - hue["stack8_s1"]) > 0.05
+    for base in ("Classical", "Analytic"):
+        assert all(abs(hue[base] - hue[f"{s}_s1"]) > 0.05 for s in ("stack4", "stack8"))
+
+
 def test_paired_difference_plot_is_a_distribution_at_n_1000():
     import matplotlib
 

@@ -36,6 +36,33 @@ def colours_for(labels) -> dict[str, str]:
             for lab in dict.fromkeys(labels)}
 
 
+def family_colours(labels) -> dict[str, tuple]:
+    """One hue per study, one shade per seed: labels ``<study>_s<seed>`` of one study share
+    the colour colours_for gives the study, from dark to light in the order given; any other
+    label is a family of one at its own colour. A figure of two five-seed studies beside the
+    baselines then reads as three groups, where one colour per label ran out of distinct hues
+    (the palette's light shades sat beside the colours they lighten)."""
+    import re
+
+    from matplotlib.colors import to_rgb
+
+    labels = list(dict.fromkeys(labels))
+    family = {lab: re.sub(r"_s\d+$", "", lab) for lab in labels}
+    base = colours_for(family.values())
+    members: dict[str, list[str]] = {}
+    for lab in labels:
+        members.setdefault(family[lab], []).append(lab)
+    out = {}
+    for fam, labs in members.items():
+        rgb = np.array(to_rgb(base[fam]))
+        # shade k of n: from 30% towards black to 45% towards white; hue unchanged
+        for k, lab in enumerate(labs):
+            t = 0.0 if len(labs) == 1 else -0.30 + 0.75 * k / (len(labs) - 1)
+            shade = rgb * (1 + t) if t < 0 else rgb + (1 - rgb) * t
+            out[lab] = tuple(float(v) for v in shade)
+    return out
+
+
 def _colour(name: str):
     """A matplotlib colour spec: "C3" as is, "tab20:k" as tab20's k-th RGB tuple."""
     if not name.startswith("tab20:"):
