@@ -34,7 +34,8 @@ LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_lar
                "deploy_large_batch_curv10_split_continued_5m",
                "deploy_large_batch_curv10_actions_stack4_continued_5m",
                "deploy_large_batch_curv10_actions_stack8_continued_5m",
-               "deploy_large_batch_curv10_actions_stack4_continued_again_5m")
+               "deploy_large_batch_curv10_actions_stack4_continued_again_5m",
+               "deploy_large_batch_curv10_actions_stack4_finetuned_5m")
 # single-seed pilots (seed 2, the hardware model's), every seed kept: the curvature term's weight
 PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
           "deploy_large_batch_curv100_continued_5m")
@@ -91,6 +92,9 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
               "deploy_large_batch_curv10_actions_stack4_continued_again_5m",
               ["deploy_large_batch_curv10_actions_stack4_continued_again_5m",
                "deploy_large_batch_curv10_actions_stack4_continued_again_5m_rest"]),
+          "deploy_large_batch_curv10_actions_stack4_20m": (
+              "deploy_large_batch_curv10_actions_stack4_finetuned_5m",
+              ["deploy_large_batch_curv10_actions_stack4_finetuned_5m"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
                                     ["v5_err_decay_preview_continued_5m"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",

@@ -36,7 +36,8 @@ BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_
                 "deploy_large_batch_curv10_actions_continued_5m",
                 "deploy_large_batch_curv10_actions_stack4_continued_5m",
                 "deploy_large_batch_curv10_actions_stack8_continued_5m",
-                "deploy_large_batch_curv10_actions_stack4_continued_again_5m"}
+                "deploy_large_batch_curv10_actions_stack4_continued_again_5m",
+                "deploy_large_batch_curv10_actions_stack4_finetuned_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -472,6 +473,13 @@ def table_steps() -> list[Step]:
     steps.append(_deploy([f"{a}seeds/{name}_s{k}.zip" for k in (2, 4) for name in (stack, again)],
                          f"results/studies/{again}/pilots_selection500",
                          ("none", "delay1", "delay3", "noise1"), "5000000-5000499"))
+    # ... and those 15M seeds trained 5M steps more, gently (their own exploration, lr 3e-4):
+    # against their starts; its chosen seed with the same 10 Hz low-pass under noise beside the
+    # 15M hardware model, every row on all 1,000 test seeds
+    fine = "deploy_large_batch_curv10_actions_stack4_finetuned_5m"
+    steps += _study_against(fine, again)
+    steps.append(_every_row(fine, "deploy_large_batch_curv10_actions_stack4_20m_lp10",
+                            "deploy_large_batch_curv10_actions_stack4_15m_lp10"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
     # on all 1,000 test seeds, the noise rows against the filtered rival
