@@ -71,7 +71,21 @@ def test_a_warm_started_policy_acts_and_values_as_its_model_on_the_inputs_they_s
         vec.close()
 
 
-def test_a_run_that_stacks_more_observations_starts_as_its_model_on_the_newest():
+def test_init_keep_std_continues_at_the_models_trained_exploration():
+    config, vec, model = _built(OBS_15 + ("tip_error",), init_keep_std=True)
+    try:
+        warm_start(model, config.init_from, config)
+        old = load_policy(START)[0]
+        trained = old.log_std.detach().numpy()
+        assert np.all(trained < config.log_std_init - 1.0)  # a trained lead explores narrowly
+        np.testing.assert_array_equal(model.policy.log_std.detach().numpy(), trained)
+    finally:
+        vec.close()
+    with pytest.raises(UserError, match="needs --init-from"):
+        TrainConfig(init_keep_std=True)
+
+
+
     """obs_stack 3 from a model that saw one observation: the newest block (recent_actions
     added) holds the model's weights, the two older blocks are new inputs at zero weight."""
     features = OBS_15 + ("tip_error", "recent_actions")

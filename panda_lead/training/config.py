@@ -128,6 +128,10 @@ class TrainConfig:
     mean is the model's (its exploration starts at --log-std-init). ``{seed}`` in the path is
     replaced by --seed (one starting model per training seed, e.g.
     archive/seeds/v5_err_decay_kept_s{seed}.zip). None: a fresh network."""
+    init_keep_std: bool = False
+    """With --init-from: explore at the starting model's trained std, not --log-std-init (a
+    fine-tune in the model's own world; a world that changed needs the wider restart,
+    training/warm_start.py says why)."""
     preset: str | None = None
     """Start from a preset (see the list above); every flag given overrides it."""
 
@@ -186,6 +190,11 @@ class TrainConfig:
                 or "}" in self.init_from.replace("{seed}", "")):
             raise UserError(f"--init-from must be a model's path ({{seed}} the only "
                             f"placeholder), got {self.init_from!r}")
+        if self.init_keep_std is not False and (self.init_keep_std is not True
+                                                or self.init_from is None):
+            raise UserError("--init-keep-std keeps a starting model's exploration: it needs "
+                            f"--init-from (got init_keep_std={self.init_keep_std!r}, "
+                            f"init_from={self.init_from!r})")
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
         if self.caps_curvature_delayed is not None:

@@ -531,6 +531,20 @@ PRESETS.update([
             "study's trained seed, the path ahead at zero weight (36-D): knows the planned "
             "path", env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
             lr_schedule="linear", init_from=HEADLINE_SEEDS),
+    # ... both again with a gentle restart (the seeds' own exploration, --init-keep-std, and
+    # lr 3e-4 decayed to 0): the continuation above knocked the converged lead off its optimum
+    # in its first updates (std 0.37 against the trained 0.04-0.11, a fresh Adam at 1e-3), so
+    # what the path ahead is worth to a lead that already tracks was measured on a lead that
+    # no longer did. Control: the gentle continuation without the path ahead.
+    _preset("v5_err_decay_finetuned", "v5_err_decay_continued restarted gently (its seeds' own "
+            "exploration, lr 3e-4): the control of v5_err_decay_preview_finetuned (18-D)",
+            env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
+            learning_rate=3e-4, init_from=HEADLINE_SEEDS, init_keep_std=True),
+    _preset("v5_err_decay_preview_finetuned", "v5_err_decay_preview_continued restarted gently "
+            "(its seeds' own exploration, lr 3e-4; 36-D): knows the planned path",
+            env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
+            lr_schedule="linear", learning_rate=3e-4, init_from=HEADLINE_SEEDS,
+            init_keep_std=True),
     # The same knowledge, encoded as what the policy cannot read from the present target:
     # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
     # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.

@@ -7,11 +7,15 @@ model's, exactly; what the new inputs are worth is then what training finds, mea
 a control that continues the same model without them. Every other tensor must match in shape:
 same network, same action.
 
-The exploration starts afresh at the run's --log-std-init; only the mean and the value are the
-model's. A trained lead's std is 0.04-0.10 (log_std -3.2 to -2.3), and PPO's clipped ratio lets
+The exploration starts afresh at the run's --log-std-init unless --init-keep-std keeps the
+model's own; by default only the mean and the value are the model's. A trained lead's std is 0.04-0.10 (log_std -3.2 to -2.3), and PPO's clipped ratio lets
 such a narrow policy move its mean only by a fraction of that per update: kept, the first try
 (deploy_large_batch from the headline's seeds 1 and 3) sat at its starting evaluation error,
 3.65-4.13 cm, for 1.1M steps, where the same preset from random weights went from 6.2 to 3.2 cm.
+In the model's own world the wide restart costs instead: the 4-stack's 15M seeds (restarted at
+std 0.37 and lr 1e-3) evaluated at 2.75-2.82 cm on average over their first 1M steps against
+their start's 2.24-2.31, while the same seeds restarted at their own std and lr 3e-4 stayed
+at 2.22-2.36 (docs/deploy.md, "Trained on gently").
 """
 
 from __future__ import annotations
@@ -71,7 +75,8 @@ def _column_map(old_features, new_features, old_stack: int = 1) -> list[tuple[in
 
 def warm_start(model, template: str, config) -> dict:
     """Load the starting model's tensors into a freshly built PPO ``model`` (optimizer state
-    fresh: Adam's moments belong to the old run's steps; log_std the run's own). Returns the
+    fresh: Adam's moments belong to the old run's steps; log_std the run's own unless
+    config.init_keep_std). Returns the
     record the run's sidecars keep: path and sha256 of the model it started from."""
     import torch
 
@@ -91,7 +96,7 @@ def warm_start(model, template: str, config) -> dict:
                 for old, new, width in cols:
                     grown[:, new:new + width] = value[:, old:old + width]
                 value = grown
-            if name == "log_std":
+            if name == "log_std" and not config.init_keep_std:
                 value = torch.full_like(target[name], config.log_std_init)
             if value.shape != target[name].shape:
                 raise UserError(f"--init-from {path}: {name} is {tuple(value.shape)} there, "
