@@ -8,14 +8,15 @@ a control that continues the same model without them. Every other tensor must ma
 same network, same action.
 
 The exploration starts afresh at the run's --log-std-init unless --init-keep-std keeps the
-model's own; by default only the mean and the value are the model's. A trained lead's std is 0.04-0.10 (log_std -3.2 to -2.3), and PPO's clipped ratio lets
-such a narrow policy move its mean only by a fraction of that per update: kept, the first try
-(deploy_large_batch from the headline's seeds 1 and 3) sat at its starting evaluation error,
-3.65-4.13 cm, for 1.1M steps, where the same preset from random weights went from 6.2 to 3.2 cm.
-In the model's own world the wide restart costs instead: the 4-stack's 15M seeds (restarted at
-std 0.37 and lr 1e-3) evaluated at 2.75-2.82 cm on average over their first 1M steps against
-their start's 2.24-2.31, while the same seeds restarted at their own std and lr 3e-4 stayed
-at 2.22-2.36 (docs/deploy.md, "Trained on gently").
+model's own; by default only the mean and the value are the model's. A trained lead's std is
+0.04-0.10 (log_std -3.2 to -2.3), and PPO's clipped ratio lets such a narrow policy move its
+mean only by a fraction of that per update: kept, the first try (deploy_large_batch from the
+headline's seeds 1 and 3, a new world) sat at its starting evaluation error, 3.65-4.13 cm, for
+1.1M steps, where the same preset from random weights went from 6.2 to 3.2 cm. In the model's
+own world the wide restart costs instead: the 4-stack's seeds restarted at std 0.37 and lr 1e-3
+(10M to 15M steps) averaged 2.75-2.82 cm over their first 1M steps, where their starts' best
+was about 2.3; the 15M seeds restarted near their own std (0.09) at lr 3e-4 averaged 2.22-2.36
+(docs/deploy.md, "Trained on gently").
 """
 
 from __future__ import annotations
