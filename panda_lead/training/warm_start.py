@@ -15,7 +15,7 @@ headline's seeds 1 and 3, a new world) sat at its starting evaluation error, 3.6
 1.1M steps, where the same preset from random weights went from 6.2 to 3.2 cm. In the model's
 own world the wide restart costs instead: the 4-stack's seeds restarted at std 0.37 and lr 1e-3
 (10M to 15M steps) averaged 2.75-2.82 cm over their first 1M steps, where their starts' best
-was about 2.3; the 15M seeds restarted near their own std (0.09) at lr 3e-4 averaged 2.22-2.36
+were 2.28-2.43; the 15M seeds restarted near their own std (0.09) at lr 3e-4 averaged 2.22-2.36
 (docs/deploy.md, "Trained on gently").
 """
 
