@@ -41,7 +41,9 @@ PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_co
           "deploy_large_batch_curv100_continued_5m")
 # the headline study's seeds trained on, with and without the path ahead (issue 37; 5M steps
 # on top of v5_err_decay_kept's, train.py --init-from)
-CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m")
+CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m",
+             # ... and again with a gentle restart (their own exploration, lr 3e-4)
+             "v5_err_decay_finetuned_5m", "v5_err_decay_preview_finetuned_5m")
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
@@ -60,6 +62,8 @@ EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                    "deploy_large_batch_curv10_continued_5m_rest"],
                "deploy_large_batch_curv10_actions_stack4_continued_again_5m": [
                    "deploy_large_batch_curv10_actions_stack4_continued_again_5m_rest"],
+               **{s: [f"{s}_rest"] for s in ("v5_err_decay_finetuned_5m",
+                                             "v5_err_decay_preview_finetuned_5m")},
                **{s: [f"{s}_s45"] for s in ["joint_5m", "curriculum_5m", "v9_5m", PREVIOUS,
                                             PRESET_STUDY, "ikfree_5m"]}}
 # archived name -> (study, sweep folders holding its runs)
@@ -110,7 +114,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         **{s: s for s in (*LARGE_BATCH, *CONTINUED, *PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
-        **{s: f"{s}*" for s in LARGE_BATCH if s in EXTRA_SEEDS}}
+        **{s: f"{s}*" for s in (*LARGE_BATCH, *CONTINUED) if s in EXTRA_SEEDS}}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m", "preview_continued_10m"]

@@ -308,13 +308,16 @@ def table_steps() -> list[Step]:
     steps.append(_compare("preview_feedforward_settled_5m", "preview_feedforward_5m"))
     # the path ahead once the causal lead is learned: the headline study's seeds trained on
     # with it and without it (the control), against each other, their start and the rival
+    # (and the same pair again with a gentle restart: the seeds' own exploration, lr 3e-4)
     cont, pcont = "v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m"
-    for study in (cont, pcont):
+    for study in (cont, pcont, "v5_err_decay_finetuned_5m", "v5_err_decay_preview_finetuned_5m"):
         steps += [_report(study), _compare(study, "v5_err_decay_kept"),
                   Step((f"results/studies/{study}/vs_feedforward.md",),
                        ("studies/runs.py", "compare", "--study", study, "--against-study",
                         "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
-    steps.append(_compare(pcont, cont))
+    steps += [_compare(pcont, cont),
+              _compare("v5_err_decay_preview_finetuned_5m", "v5_err_decay_finetuned_5m"),
+              _compare("v5_err_decay_finetuned_5m", cont)]
     # ... and its chosen model's share of the oracle's gain, the oracle restarted from it
     steps.append(Step((f"results/studies/{pcont}/with_oracle.md",),
                       ("metrics.py", "--prefix-a", "analytic", "--prefix-b",
