@@ -85,7 +85,10 @@ def digest(root: Path, paths: tuple[str, ...]) -> str | None:
         p = root / rel
         if not p.exists():
             return None
-        files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+        # dot-files are machine-local (the .NAME.lock beside a summary, which git ignores): in
+        # the hash they made a fresh clone see its committed tables as stale
+        files = (sorted(f for f in p.rglob("*") if f.is_file() and not f.name.startswith("."))
+                 if p.is_dir() else [p])
         for f in files:
             name = f.relative_to(root).as_posix()
             h.update(name.encode() + b"\0")

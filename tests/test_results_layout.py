@@ -94,7 +94,17 @@ def test_stale_steps_rebuild_and_current_ones_do_not(tmp_path):
     assert results.build(tmp_path, [step], force=True) == 0 and counter.read_text() == "xxxx"
 
 
-def test_a_run_beside_another_keeps_the_stamps_the_other_wrote(tmp_path):
+def test_a_folders_digest_ignores_machine_local_lock_files(tmp_path):
+    (tmp_path / "runs" / "study").mkdir(parents=True)
+    (tmp_path / "runs" / "study" / "seed_1.json").write_text("{}")
+    before = results.digest(tmp_path, ("runs/study",))
+    (tmp_path / "runs" / "study" / ".seed_1.json.lock").write_text("")
+    assert results.digest(tmp_path, ("runs/study",)) == before
+    (tmp_path / "runs" / "study" / "seed_2.json").write_text("{}")
+    assert results.digest(tmp_path, ("runs/study",)) != before
+
+
+
     """Two `results.py --only` runs side by side: a stamp the other run saved while this one's
     step ran is still in the manifest after this one saves its own."""
     other = {"command": "uv run other.py", "commit": "abc", "inputs": "0"}
