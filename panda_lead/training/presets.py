@@ -29,6 +29,11 @@ DEPLOY_UNSMOOTHED_ENV = dict(obs_features=OBS_15 + ("tip_error", "prev_action", 
 # family): what a warm-started preset starts from, seed by seed (TrainConfig.init_from).
 HEADLINE_SEEDS = "archive/seeds/v5_err_decay_kept_s{seed}.zip"
 
+# ... trained on from them gently: their own exploration (TrainConfig.init_keep_std) and a
+# third of the preset's step, decayed to 0
+HEADLINE_GENTLY = dict(init_from=HEADLINE_SEEDS, init_keep_std=True, learning_rate=3e-4,
+                       lr_schedule="linear")
+
 # deploy_large_batch's config, which its variants (a wider network, another nominal share) vary.
 DEPLOY_LARGE_BATCH = dict(env=dict(DEPLOY_UNSMOOTHED_ENV, arm_filter=True, nominal_share=0.75),
                           lr_schedule="linear", caps_temporal=1.0, caps_spatial=10.0,
@@ -538,13 +543,10 @@ PRESETS.update([
     # no longer did. Control: the gentle continuation without the path ahead.
     _preset("v5_err_decay_finetuned", "v5_err_decay_continued restarted gently (its seeds' own "
             "exploration, lr 3e-4): the control of v5_err_decay_preview_finetuned (18-D)",
-            env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear",
-            learning_rate=3e-4, init_from=HEADLINE_SEEDS, init_keep_std=True),
+            env=dict(obs_features=OBS_15 + ("tip_error",)), **HEADLINE_GENTLY),
     _preset("v5_err_decay_preview_finetuned", "v5_err_decay_preview_continued restarted gently "
             "(its seeds' own exploration, lr 3e-4; 36-D): knows the planned path",
-            env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")),
-            lr_schedule="linear", learning_rate=3e-4, init_from=HEADLINE_SEEDS,
-            init_keep_std=True),
+            env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")), **HEADLINE_GENTLY),
     # The same knowledge, encoded as what the policy cannot read from the present target:
     # preview_v1 (the raw offsets above, up to 7.5 at their scale) tested 0.58 cm worse than
     # the headline study on 2 of 5 seeds, its best evaluations at 0.65M steps and worse after.
