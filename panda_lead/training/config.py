@@ -190,11 +190,11 @@ class TrainConfig:
                 or "}" in self.init_from.replace("{seed}", "")):
             raise UserError(f"--init-from must be a model's path ({{seed}} the only "
                             f"placeholder), got {self.init_from!r}")
-        if self.init_keep_std is not False and (self.init_keep_std is not True
-                                                or self.init_from is None):
+        if not isinstance(self.init_keep_std, bool):
+            raise UserError(f"init_keep_std must be true or false, got {self.init_keep_std!r}")
+        if self.init_keep_std and self.init_from is None:
             raise UserError("--init-keep-std keeps a starting model's exploration: it needs "
-                            f"--init-from (got init_keep_std={self.init_keep_std!r}, "
-                            f"init_from={self.init_from!r})")
+                            "--init-from")
         if not isinstance(self.fast_update, bool):
             raise UserError(f"fast_update must be true or false, got {self.fast_update!r}")
         if self.caps_curvature_delayed is not None:
