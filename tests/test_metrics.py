@@ -399,8 +399,12 @@ def test_family_colours_give_a_study_one_hue_and_its_seeds_shades():
         assert light == sorted(light)  # ... from dark to light in the order given
     # two studies and the baselines: hues apart, not shades of each other
     assert abs(hue["stack4_s1"] - hue["stack8_s1"]) > 0.05
-    for base in ("Classical", "Analytic"):
+    for base in ("Classical", "Analytic", "Analytic+predict"):
         assert all(abs(hue[base] - hue[f"{s}_s1"]) > 0.05 for s in ("stack4", "stack8"))
+    # a rival keeps its colour whatever comes before it in the figure
+    alone = figures.family_colours(["Analytic+predict", "Analytic+filter"])
+    assert c["Analytic+predict"] == alone["Analytic+predict"]
+    assert alone["Analytic+filter"] != alone["Analytic+predict"]
 
 
 def test_paired_difference_plot_is_a_distribution_at_n_1000():

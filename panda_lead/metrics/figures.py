@@ -14,7 +14,10 @@ from .pairing import Comparison, seed_ranges, seed_set_title
 from .stats import BY_KEY, bootstrap_ci, fmt_ci, mean_or_nan, metric_label, peak_speed
 
 # One colour per controller label in every figure; other labels take the next free colour.
-COLOURS = {"Classical": "tab:blue", "Analytic": "tab:orange", "RL+Lead": "tab:green"}
+# The deploy table's rivals are fixed too: as the next free colour the predicting rival
+# landed in brown beside the first study's red family.
+COLOURS = {"Classical": "C0", "Analytic": "C1", "RL+Lead": "C2",
+           "Analytic+filter": "C8", "Analytic+predict": "C9"}
 
 
 # Headline bins hold at least this many rollouts (fewer bins in a small panel): a CI from
@@ -25,12 +28,14 @@ MIN_PER_BIN = 5
 def colours_for(labels) -> dict[str, str]:
     """One colour per label: the fixed COLOURS where known, else the next unused tab10 colour
     (never C7, grey: the colour of the reference lines), then tab20's lighter shades, then
-    around again (a figure of many labels repeats colours; it does not fail)."""
+    tab20b's dark hues, then around again (a figure of many labels repeats colours; it does
+    not fail)."""
     from itertools import cycle
 
     spare = [f"C{i}" for i in (3, 4, 5, 6, 8, 9)]
     spare = [c for c in spare if c not in COLOURS.values()]
     spare += [f"tab20:{i}" for i in range(1, 20, 2) if i != 15]  # tab20's light shades, no grey
+    spare += [f"tab20b:{i}" for i in range(0, 20, 4)]  # then tab20b's five dark hues
     free = cycle(spare)
     return {lab: COLOURS[lab] if lab in COLOURS else _colour(next(free))
             for lab in dict.fromkeys(labels)}
@@ -64,12 +69,13 @@ def family_colours(labels) -> dict[str, tuple]:
 
 
 def _colour(name: str):
-    """A matplotlib colour spec: "C3" as is, "tab20:k" as tab20's k-th RGB tuple."""
-    if not name.startswith("tab20:"):
+    """A matplotlib colour spec: "C3" as is, "tab20:k" as that colormap's k-th RGB tuple."""
+    if ":" not in name:
         return name
     from matplotlib import colormaps
 
-    return colormaps["tab20"](int(name.split(":")[1]))
+    cmap, k = name.split(":")
+    return colormaps[cmap](int(k))
 
 
 def pyplot():
