@@ -100,7 +100,10 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
               "deploy_large_batch_curv10_actions_stack4_finetuned_5m",
               ["deploy_large_batch_curv10_actions_stack4_finetuned_5m"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
-                                    ["v5_err_decay_preview_continued_5m"])}
+                                    ["v5_err_decay_preview_continued_5m"]),
+          "preview_finetuned_10m": ("v5_err_decay_preview_finetuned_5m",
+                                    ["v5_err_decay_preview_finetuned_5m",
+                                     "v5_err_decay_preview_finetuned_5m_rest"])}
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
@@ -117,13 +120,14 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         **{s: f"{s}*" for s in (*LARGE_BATCH, *CONTINUED) if s in EXTRA_SEEDS}}
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
-               "preview_5m", "preview_continued_10m"]
+               "preview_5m", "preview_continued_10m", "preview_finetuned_10m"]
 # single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
 # device pilots on the deployment world's share of nominal episodes (docs/deploy.md)
 SEED_POLICY_SETS = SHARE_LADDER
 # the ILC oracle's rollout sets (test seeds 0-199): prefix -> the archived model it starts from
 ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
-           "ilc_preview_continued": "preview_continued_10m"}
+           "ilc_preview_continued": "preview_continued_10m",
+           "ilc_preview_finetuned": "preview_finetuned_10m"}
 
 
 def _run(root: Path, *argv: str) -> None:

@@ -37,7 +37,9 @@ BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_
                 "deploy_large_batch_curv10_actions_stack4_continued_5m",
                 "deploy_large_batch_curv10_actions_stack8_continued_5m",
                 "deploy_large_batch_curv10_actions_stack4_continued_again_5m",
-                "deploy_large_batch_curv10_actions_stack4_finetuned_5m"}
+                "deploy_large_batch_curv10_actions_stack4_finetuned_5m",
+                "v5_err_decay_preview_finetuned_5m",
+                "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -325,6 +327,14 @@ def table_steps() -> list[Step]:
                        "--markdown"),
                       ("rollouts/analytic", "rollouts/preview_continued_10m",
                        "rollouts/ilc_preview_continued"), stdout=True, section="all"))
+    # ... and the gentle continuation's chosen model's, the oracle restarted from it
+    pfine = "v5_err_decay_preview_finetuned_5m"
+    steps.append(Step((f"results/studies/{pfine}/with_oracle.md",),
+                      ("metrics.py", "--prefix-a", "analytic", "--prefix-b",
+                       "preview_finetuned_10m", "--oracle", "ilc_preview_finetuned",
+                       "--markdown"),
+                      ("rollouts/analytic", "rollouts/preview_finetuned_10m",
+                       "rollouts/ilc_preview_finetuned"), stdout=True, section="all"))
     steps.append(Step((f"results/studies/{pcont}/vs_future_target.md",),
                       ("studies/runs.py", "compare", "--study", pcont, "--against-study",
                        "baseline:future_target"), _runs(pcont, "baselines.json"), stdout=True))
