@@ -149,6 +149,16 @@ def _every_row(study: str, model: str, previous: str) -> Step:
                    "--check-from", "0.75")
 
 
+def _with_oracle(study: str, model: str, oracle: str) -> Step:
+    """A study's chosen model against the analytic lead and the ILC oracle restarted from it
+    (results/studies/<study>/with_oracle.md)."""
+    return Step((f"results/studies/{study}/with_oracle.md",),
+                ("metrics.py", "--prefix-a", "analytic", "--prefix-b", model, "--oracle",
+                 oracle, "--markdown"),
+                ("rollouts/analytic", f"rollouts/{model}", f"rollouts/{oracle}"), stdout=True,
+                section="all")
+
+
 def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
     return Step((f"{out_dir}/{question}.md", f"{out_dir}/{question}.png"),
                 ("studies/robustness.py", "--question", question, "--models", *models,
@@ -320,21 +330,11 @@ def table_steps() -> list[Step]:
     steps += [_compare(pcont, cont),
               _compare("v5_err_decay_preview_finetuned_5m", "v5_err_decay_finetuned_5m"),
               _compare("v5_err_decay_finetuned_5m", cont)]
-    # ... and its chosen model's share of the oracle's gain, the oracle restarted from it
-    steps.append(Step((f"results/studies/{pcont}/with_oracle.md",),
-                      ("metrics.py", "--prefix-a", "analytic", "--prefix-b",
-                       "preview_continued_10m", "--oracle", "ilc_preview_continued",
-                       "--markdown"),
-                      ("rollouts/analytic", "rollouts/preview_continued_10m",
-                       "rollouts/ilc_preview_continued"), stdout=True, section="all"))
-    # ... and the gentle continuation's chosen model's, the oracle restarted from it
-    pfine = "v5_err_decay_preview_finetuned_5m"
-    steps.append(Step((f"results/studies/{pfine}/with_oracle.md",),
-                      ("metrics.py", "--prefix-a", "analytic", "--prefix-b",
-                       "preview_finetuned_10m", "--oracle", "ilc_preview_finetuned",
-                       "--markdown"),
-                      ("rollouts/analytic", "rollouts/preview_finetuned_10m",
-                       "rollouts/ilc_preview_finetuned"), stdout=True, section="all"))
+    # ... and each chosen model's share of the oracle's gain, the oracle restarted from it
+    # (the wide restart's and the gentle one's)
+    steps += [_with_oracle(pcont, "preview_continued_10m", "ilc_preview_continued"),
+              _with_oracle("v5_err_decay_preview_finetuned_5m", "preview_finetuned_10m",
+                           "ilc_preview_finetuned")]
     steps.append(Step((f"results/studies/{pcont}/vs_future_target.md",),
                       ("studies/runs.py", "compare", "--study", pcont, "--against-study",
                        "baseline:future_target"), _runs(pcont, "baselines.json"), stdout=True))
