@@ -36,7 +36,8 @@ LARGE_BATCH = ("deploy_large_batch_5m", "deploy_large_batch_n90_5m", "deploy_lar
                "deploy_large_batch_curv10_actions_stack8_continued_5m",
                "deploy_large_batch_curv10_actions_stack4_continued_again_5m",
                "deploy_large_batch_curv10_actions_stack4_finetuned_5m",
-               "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m")
+               "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m",
+               "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m")
 # single-seed pilots (seed 2, the hardware model's), every seed kept: the curvature term's weight
 PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_continued_5m",
           "deploy_large_batch_curv100_continued_5m")
@@ -103,6 +104,9 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
           "deploy_large_batch_curv10_actions_stack4_20m_n50": (
               "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m",
               ["deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m"]),
+          "deploy_large_batch_curv10_actions_stack4_20m_late100": (
+              "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m",
+              ["deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
                                     ["v5_err_decay_preview_continued_5m"]),
           "preview_finetuned_10m": ("v5_err_decay_preview_finetuned_5m",
