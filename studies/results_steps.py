@@ -495,7 +495,8 @@ def table_steps() -> list[Step]:
     steps.append(_every_row(fine, "deploy_large_batch_curv10_actions_stack4_20m_lp10",
                             "deploy_large_batch_curv10_actions_stack4_15m_lp10"))
     # ... and the same gentle fine-tune with half the episodes nominal: against the gentle
-    # one (and its starts' precision); its chosen seed with the 10 Hz low-pass beside the hardware model, every row
+    # one (and its starts' precision); its chosen seed with the 10 Hz low-pass beside the
+    # hardware model, every row
     n50 = "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m"
     steps += _study_against(n50, fine) + [_compare(n50, again)]
     steps.append(_every_row(n50, "deploy_large_batch_curv10_actions_stack4_20m_n50_lp10",
