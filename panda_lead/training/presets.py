@@ -65,6 +65,15 @@ def _with_memory(stack: int) -> dict:
             "caps_curvature": 10.0}
 
 
+def _stack4_gently(**env) -> dict:
+    """The 4-stack's config trained on gently from its 15M seeds: their own exploration
+    (log_std_init -2.45; their trained log_std is -2.25 to -2.62) and lr 3e-4 decayed to 0;
+    ``env`` overrides parts of its world."""
+    config = _with_memory(4)
+    return {**config, "env": dict(config["env"], **env), "learning_rate": 3e-4,
+            "log_std_init": -2.45, "init_from": STACK4_15M_SEEDS}
+
+
 def _limit_lead(w_limit: float) -> dict:
     """deploy_large_batch with the limit term on what the lead adds (limit_lead_only)."""
     return {**DEPLOY_LARGE_BATCH, "env": dict(DEPLOY_LARGE_BATCH["env"], w_limit=w_limit,
@@ -483,8 +492,7 @@ PRESETS.update([
     _preset("deploy_large_batch_curv10_actions_stack4_finetuned",
             "deploy_large_batch_curv10_actions_stack4_continued_again trained on from its own "
             "trained seeds at their own exploration (log_std_init -2.45) and lr 3e-4 "
-            "(obs_stack 4; 4 x 43-D)", **{**_with_memory(4), "learning_rate": 3e-4},
-            log_std_init=-2.45, init_from=STACK4_15M_SEEDS),
+            "(obs_stack 4; 4 x 43-D)", **_stack4_gently()),
     # ... the same gentle fine-tune in a world weighted toward latency: half the episodes
     # nominal instead of three in four. The gentle one gained 0.07 cm and lost 1.7 points of
     # acceptance at 30 ms against its starts: with a narrow exploration the gradient follows
@@ -492,10 +500,7 @@ PRESETS.update([
     # Control: the gentle fine-tune (same start, schedule, budget).
     _preset("deploy_large_batch_curv10_actions_stack4_finetuned_n50",
             "deploy_large_batch_curv10_actions_stack4_finetuned with half the episodes nominal "
-            "(nominal_share 0.5; obs_stack 4; 4 x 43-D)",
-            **{**_with_memory(4), "learning_rate": 3e-4,
-               "env": dict(_with_memory(4)["env"], nominal_share=0.5)},
-            log_std_init=-2.45, init_from=STACK4_15M_SEEDS),
+            "(nominal_share 0.5; obs_stack 4; 4 x 43-D)", **_stack4_gently(nominal_share=0.5)),
     # ... the same gentle fine-tune with the curvature term at weight 100 in the episodes with
     # latency (10 elsewhere): on one curv10 seed that weight passed the analytic lead's
     # acceptance at 30 ms on 500 selection paths by leading less there (+0.5 cm at 30 ms), and
@@ -503,9 +508,8 @@ PRESETS.update([
     # Control: the gentle fine-tune (same start, schedule, budget, world).
     _preset("deploy_large_batch_curv10_actions_stack4_finetuned_late100",
             "deploy_large_batch_curv10_actions_stack4_finetuned with curvature weight 100 in the "
-            "episodes with latency (obs_stack 4; 4 x 43-D)",
-            **{**_with_memory(4), "learning_rate": 3e-4}, caps_curvature_delayed=100.0,
-            log_std_init=-2.45, init_from=STACK4_15M_SEEDS),
+            "episodes with latency (obs_stack 4; 4 x 43-D)", **_stack4_gently(),
+            caps_curvature_delayed=100.0),
     # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
     # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
     # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
