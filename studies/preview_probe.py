@@ -16,6 +16,7 @@ trajectories held out.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -99,8 +100,11 @@ def main(args: Args) -> None:
     from panda_lead.ilc import ILCConfig, learn_leads
     from panda_lead.seeds import DISTILL_SEEDS, DISTILL_SLICE
 
+    from panda_lead.models import cpu_name
+
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=ROOT).stdout.strip()
+    flags = "" if args.probe_n == Args.probe_n else f" --probe-n {args.probe_n}"
     wide = student_config(STUDENT_FEATURES + ("tip_error_avg", "joint_pos", "joint_vel"), 500)
     seeds = list(range(DISTILL_SEEDS.stop - DISTILL_SLICE, DISTILL_SEEDS.stop))[:args.probe_n]
     leads, hist = learn_leads(wide, seeds, None, ILCConfig(),
@@ -110,7 +114,8 @@ def main(args: Args) -> None:
     prev = preview_columns(kept, wide.episode_steps, control_dt(), args.preview_times)
     held = split(seeds, args.val_frac)[ok]
     settle = int(round(0.5 / control_dt()))
-    print(f"Made by `uv run studies/preview_probe.py` at commit {commit} (2-core Intel Xeon). "
+    print(f"Made by `uv run studies/preview_probe.py{flags}` at commit {commit} "
+          f"({os.cpu_count()} cores, {cpu_name()}). "
           f"Teacher: the ILC oracle (ILCConfig defaults) started from {args.init_model.stem} on "
           f"{len(seeds)} distillation trajectories ({seeds[0]}-{seeds[-1]}), {hist[0]:.3f} -> "
           f"{hist[-1]:.3f} cm; {held.sum()} held out. Preview: p(t + h) - p(t) for h in "

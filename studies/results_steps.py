@@ -503,12 +503,14 @@ def table_steps() -> list[Step]:
                             "deploy_large_batch_curv10_actions_stack4_15m_lp10"))
     # ... and the gentle fine-tune with curvature weight 100 where there is latency: its
     # precision against the gentle one and its starts; both studies' ten seeds at 30 ms of
-    # latency, the row its chosen seed was adopted for (the other rows' ten-seed table was
-    # not run); its chosen seed every row beside the hardware model it replaced
+    # latency, the row its chosen seed was adopted for, and (run after the adoption) without
+    # latency and at 10 ms; its chosen seed every row beside the hardware model it replaced
     late = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"
     steps += [_report(late), _compare(late, fine), _compare(late, again),
               _deploy_studies(fine, late, f"results/studies/{late}/test1000_delay3",
                               ("delay3",), "0-999", "--check-from", "0.75"),
+              _deploy_studies(fine, late, f"results/studies/{late}/test1000_none_delay1",
+                              ("none", "delay1"), "0-999", "--check-from", "0.75"),
               _every_row(late, "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10",
                          "deploy_large_batch_curv10_actions_stack4_15m_lp10")]
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
