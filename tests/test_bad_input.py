@@ -303,6 +303,13 @@ def test_help_is_untouched(tmp_path, script):
     assert "usage:" in out.stdout and "--help" in out.stdout
 
 
+def test_a_missing_model_is_named_before_the_missing_display(tmp_path, monkeypatch):
+    # watching needs a display; the user's missing model is still the first thing they hear
+    monkeypatch.setattr("panda_lead.display.has_display", lambda: False)
+    one_line(run(ROOT / "eval.py", "--seed", "5", "--model", tmp_path / "nosuch.zip",
+                 cwd=tmp_path), "nosuch.zip")
+
+
 @pytest.mark.parametrize("script,args", [("ikpd.py", ["--seed", "x"]),
                                          ("train.py", ["--n-envs", "x"])])
 def test_a_bad_type_in_eval_or_train_is_one_line(tmp_path, script, args):

@@ -161,6 +161,9 @@ def write_video(args: Args, seed: int, overrides: dict) -> None:
 def watch(args: Args, seed: int, overrides: dict) -> None:
     from ..display import has_display
 
+    # The controller first: a missing or mismatched model is the user's first problem to
+    # hear about, not the display that would then show it.
+    ctrl = _controller(args, args.controller, overrides)
     if not has_display():
         raise UserError("no display for the viewer: record instead with --video out.mp4, or "
                         "write rollout files with --seeds 0-9 --prefix NAME")
@@ -170,7 +173,6 @@ def watch(args: Args, seed: int, overrides: dict) -> None:
 
     from ..env import PandaLeadEnv
 
-    ctrl = _controller(args, args.controller, overrides)
     act = ctrl.act_for([seed], [args.shape])
     env = PandaLeadEnv(ctrl.config)
     obs, _ = env.reset(seed=seed, options={"traj_seed": seed, **(
