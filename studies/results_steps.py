@@ -150,14 +150,18 @@ def _every_row(study: str, model: str, previous: str) -> Step:
                    "--check-from", "0.75")
 
 
-def _with_oracle(study: str, model: str, oracle: str) -> Step:
-    """A study's chosen model against the analytic lead and the ILC oracle restarted from it
-    (results/studies/<study>/with_oracle.md)."""
-    return Step((f"results/studies/{study}/with_oracle.md",),
-                ("metrics.py", "--prefix-a", "analytic", "--prefix-b", model, "--oracle",
-                 oracle, "--markdown"),
+def _oracle_table(out: str, model: str, oracle: str) -> Step:
+    """A model against the analytic lead and the ILC oracle restarted from it, the share of the
+    oracle's gain it captures overall and per shape (--breakdown, its per-seed rows dropped)."""
+    return Step((out,), ("metrics.py", "--prefix-a", "analytic", "--prefix-b", model,
+                         "--oracle", oracle, "--breakdown", "--markdown"),
                 ("rollouts/analytic", f"rollouts/{model}", f"rollouts/{oracle}"), stdout=True,
-                section="all")
+                per_seed_dropped=True, section="all")
+
+
+def _with_oracle(study: str, model: str, oracle: str) -> Step:
+    """_oracle_table for a study's chosen model (results/studies/<study>/with_oracle.md)."""
+    return _oracle_table(f"results/studies/{study}/with_oracle.md", model, oracle)
 
 
 def _robust(question: str, models: list[str], out_dir: str, *extra: str) -> Step:
@@ -243,9 +247,7 @@ def table_steps() -> list[Step]:
         _pair("indep_v5", H, f"{hd}/vs_indep_v5.md"),
         _pair(PREVIOUS_HEADLINE, H, f"{hd}/vs_previous_headline.md"),
         _pair("indep_v5", "v5_5m", "results/studies/v5/v5_5m_vs_indep_v5.md"),
-        Step((f"{hd}/with_oracle.md",), ("metrics.py", "--prefix-a", "analytic", "--prefix-b", H,
-                                         "--oracle", "ilc", "--markdown"),
-             ("rollouts/analytic", f"rollouts/{H}", "rollouts/ilc"), stdout=True, section="all"),
+        _oracle_table(f"{hd}/with_oracle.md", H, "ilc"),
         Step((f"{hd}/headline.png",),
              ("metrics.py", "--headline", "classical", "analytic", "v5_5m", H, "ilc", "--labels",
               "Classical", "Analytic", "RL lead (v5_5m)", f"RL lead ({H})", "ILC oracle",
@@ -291,11 +293,7 @@ def table_steps() -> list[Step]:
              _runs("preview_5m", HS), stdout=True),
     ]
     # the preview lead's share of the oracle's gain, the oracle restarted from it (0-199)
-    steps.append(Step((f"{pv}/preview_5m_with_oracle.md",),
-                      ("metrics.py", "--prefix-a", "analytic", "--prefix-b", "preview_5m",
-                       "--oracle", "ilc_preview", "--markdown"),
-                      ("rollouts/analytic", "rollouts/preview_5m", "rollouts/ilc_preview"),
-                      stdout=True, section="all"))
+    steps.append(_oracle_table(f"{pv}/preview_5m_with_oracle.md", "preview_5m", "ilc_preview"))
     # issue 37's selection rule: every scored model and study on the selection set
     steps.append(Step(("results/studies/rank/rank.md",), ("studies/selection.py", "rank"),
                       ("results/studies/rank/scores",), stdout=True))

@@ -691,6 +691,24 @@ def test_cli_oracle_prints_the_share_of_the_achievable_gain_captured(root):
     assert p.returncode == 2 and "nope" in p.stderr
 
 
+def test_cli_oracle_breakdown_gives_the_share_captured_per_shape(root):
+    """Circles (even seeds): oracle 0.5 cm -> (3 - 1) / (3 - 0.5) = 80%; figure-eights: oracle
+    0 cm -> 67%; all four: oracle 0.25 -> 73%."""
+    for s in range(4):
+        write_prefix(root, "oracle", 0.005 if s % 2 == 0 else 0.0, [s])
+    p = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned",
+                "--oracle", "oracle", "--breakdown")
+    assert p.returncode == 0, p.stderr
+    assert "mean error: base 3.00, learned 1.00, oracle 0.25 cm; captured 73%" in p.stdout
+    assert ("shape circle (n=2), mean error: base 3.00, learned 1.00, oracle 0.50 cm; "
+            "captured 80%") in p.stdout
+    assert ("shape fig8 (n=2), settled mean error: base 3.00, learned 1.00, oracle 0.00 cm; "
+            "captured 67%") in p.stdout
+    plain = run_cli("--root", str(root), "--prefix-a", "base", "--prefix-b", "learned",
+                    "--oracle", "oracle")
+    assert "captured" in plain.stdout and "shape circle (n=2), mean" not in plain.stdout
+
+
 def test_a_narrow_terminal_gets_the_table_in_two_halves_nothing_truncated():
     from rich.console import Console
 

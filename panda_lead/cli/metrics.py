@@ -152,12 +152,21 @@ def oracle_lines(args: Args, cmp: Comparison) -> list[str]:
     lines = [f"share of the achievable gain captured, {args.label_b} between {args.label_a} "
              f"and the oracle ({args.oracle}, n={len(seeds)} seeds; 1 = the oracle's error, "
              "0 = no gain over A):"]
-    for key, name in (("mean_err", "mean error"), ("settled_err", "settled mean error")):
-        col = [np.array([m[s][key] for s in seeds]) for m in (cmp.metrics_a, cmp.metrics_b, om)]
-        share, ci = share_captured(*col, n_boot=args.bootstrap, seed=args.ci_seed)
-        lines.append(f"{name}: {args.label_a} {col[0].mean():.2f}, {args.label_b} "
-                     f"{col[1].mean():.2f}, oracle {col[2].mean():.2f} cm; captured "
-                     f"{100 * share:.0f}% [{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]")
+    # with --breakdown, also per target shape: where the gain left to capture sits
+    shape_of = {s: cmp.pairing.scored[cmp.label_a][s].shape for s in seeds}
+    groups = [("", seeds)] + ([(f"shape {sh} (n={sum(v == sh for v in shape_of.values())}), ",
+                                [s for s in seeds if shape_of[s] == sh])
+                               for sh in sorted(set(shape_of.values()))] if args.breakdown else [])
+    for prefix, group in groups:
+        if len(group) < 2:
+            continue
+        for key, name in (("mean_err", "mean error"), ("settled_err", "settled mean error")):
+            col = [np.array([m[s][key] for s in group])
+                   for m in (cmp.metrics_a, cmp.metrics_b, om)]
+            share, ci = share_captured(*col, n_boot=args.bootstrap, seed=args.ci_seed)
+            lines.append(f"{prefix}{name}: {args.label_a} {col[0].mean():.2f}, {args.label_b} "
+                         f"{col[1].mean():.2f}, oracle {col[2].mean():.2f} cm; captured "
+                         f"{100 * share:.0f}% [{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]")
     return lines
 
 
@@ -206,7 +215,7 @@ class Args:
     oracle: str | None = None
     """Rollout prefix of a ceiling (the ILC oracle) on the same seeds: also print the share of
     the achievable gain that B captures, (A - B) / (A - oracle), for the mean and the settled
-    error, with 95% bootstrap CIs."""
+    error, with 95% bootstrap CIs (with --breakdown, also per target shape)."""
 
 
 def _print_tables(console: Console, tables: list[Table], markdown: bool) -> None:
