@@ -123,6 +123,8 @@ def main(args: Args) -> None:
     flags = "" if args.probe_n == Args.probe_n else f" --probe-n {args.probe_n}"
     if args.fit_seeds != Args.fit_seeds:
         flags += " --fit-seeds " + " ".join(map(str, args.fit_seeds))
+    if args.preview_times != Args.preview_times:
+        flags += " --preview-times " + " ".join(f"{h:g}" for h in args.preview_times)
     wide = student_config(STUDENT_FEATURES + ("tip_error_avg", "joint_pos", "joint_vel"), 500)
     seeds = list(range(DISTILL_SEEDS.stop - DISTILL_SLICE, DISTILL_SEEDS.stop))[:args.probe_n]
     leads, hist = learn_leads(wide, seeds, None, ILCConfig(),
