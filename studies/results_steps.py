@@ -329,6 +329,15 @@ def table_steps() -> list[Step]:
     steps += [_compare(pcont, cont),
               _compare("v5_err_decay_preview_finetuned_5m", "v5_err_decay_finetuned_5m"),
               _compare("v5_err_decay_finetuned_5m", cont)]
+    # what the path ahead buys per target shape (a causal lead cannot see a spline's future):
+    # each preview study against the causal study it is paired with
+    for study, against in (("preview_5m", HS), (pcont, cont),
+                           ("v5_err_decay_preview_finetuned_5m", "v5_err_decay_finetuned_5m")):
+        out = (f"results/studies/preview/preview_5m_vs_{against}_by_shape.md"
+               if study == "preview_5m" else f"results/studies/{study}/vs_{against}_by_shape.md")
+        steps.append(Step((out,),
+                          ("studies/runs.py", "compare", "--study", study, "--against-study",
+                           against, "--by-shape"), _runs(study, against), stdout=True))
     # ... and each chosen model's share of the oracle's gain, the oracle restarted from it
     # (the wide restart's and the gentle one's)
     steps += [_with_oracle(pcont, "preview_continued_10m", "ilc_preview_continued"),

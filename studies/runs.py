@@ -113,6 +113,9 @@ class Args:
     less this (studies/ttq.py's bar)."""
     window: int = 2_000_000
     """diagnostics: training steps per row of the table."""
+    by_shape: bool = False
+    """compare: also the differences within each target shape (circle, fig8, fly), each shape
+    its own family for the findings rule."""
 
 
 def _metrics_on_test(ctrl) -> dict[str, list[float]]:
@@ -295,28 +298,44 @@ def compare_studies(args: Args) -> None:
     from panda_lead.metrics import bootstrap_verdicts, two_level_bootstrap
 
     rng = np.random.default_rng(0)
-    lines, cis, resamples = [], [], []
-    for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
-                      ("jerk_rms", "jerk RMS")):
-        ma = np.array([s["test"][key] for s in a])  # (seeds, trajectories)
-        mb = np.array([s["test"][key] for s in b])
-        d = mb.mean(axis=0) - ma.mean(axis=0)
-        n = d.size
-        (lo, hi), boots = two_level_bootstrap(ma, mb, args.bootstrap, rng)
-        cis.append((lo, hi))
-        resamples.append(boots)
-        lines.append(f"| {name} | {ma.mean():.3f} | {mb.mean():.3f} | {d.mean():+.3f} "
-                     f"[{lo:+.3f}, {hi:+.3f}] {{verdict}} | {np.median(d):+.3f} | "
-                     f"{100 * np.mean(d < 0):.0f}% |")
-    # The findings rule (metrics.finding_verdict): CI, pairs and Holm p over these metrics.
-    verdicts = bootstrap_verdicts(cis, resamples, n)
-    lines = [line.format(verdict=v) for line, v in zip(lines, verdicts, strict=True)]
+
+    def rows(keep: np.ndarray | None, label: str = "") -> list[str]:
+        """One row per metric over the trajectories ``keep`` selects (all when None)."""
+        lines, cis, resamples = [], [], []
+        for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
+                          ("jerk_rms", "jerk RMS")):
+            ma = np.array([s["test"][key] for s in a])  # (seeds, trajectories)
+            mb = np.array([s["test"][key] for s in b])
+            if keep is not None:
+                ma, mb = ma[:, keep], mb[:, keep]
+            d = mb.mean(axis=0) - ma.mean(axis=0)
+            (lo, hi), boots = two_level_bootstrap(ma, mb, args.bootstrap, rng)
+            cis.append((lo, hi))
+            resamples.append(boots)
+            lines.append(f"| {label}{name} | {ma.mean():.3f} | {mb.mean():.3f} | "
+                         f"{d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] {{verdict}} | "
+                         f"{np.median(d):+.3f} | {100 * np.mean(d < 0):.0f}% |")
+        # The findings rule (metrics.finding_verdict): CI, pairs and Holm p over these metrics.
+        verdicts = bootstrap_verdicts(cis, resamples, d.size)
+        return [line.format(verdict=v) for line, v in zip(lines, verdicts, strict=True)]
+
+    lines = rows(None)
+    if args.by_shape:
+        from panda_lead.seeds import parse_seed_range
+        from panda_lead.trajectory import sample
+
+        shapes = np.array([sample(int(t)).shape
+                           for t in parse_seed_range(a[0]["test_seeds"])])
+        for shape in sorted(set(shapes)):
+            lines += rows(shapes == shape, f"{shape} (n={int(np.sum(shapes == shape))}): ")
     against = _described(args.against_study, a)
     print(f"{_described(args.study, b)} minus {against}, "
           f"each the mean over its seeds per test trajectory ({TEST}); 95% CI: two-level "
           f"bootstrap over training seeds and trajectories ({args.bootstrap} resamples). "
           f"`uv run studies/runs.py compare --study {args.study} --against-study "
-          f"{args.against_study}`\n")
+          f"{args.against_study}{' --by-shape' if args.by_shape else ''}`"
+          + (" Per target shape, each shape's rows their own family." if args.by_shape else "")
+          + "\n")
     print(f"| metric | {args.against_study} | {args.study} | mean diff [95% CI] | median diff "
           f"| {args.study} better on |")
     print("|---|---|---|---|---|---|")

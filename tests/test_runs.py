@@ -234,6 +234,35 @@ def test_a_study_is_compared_with_a_rival_from_the_baselines_file(runs, tmp_path
                                        against_study="baseline:feedfwd"))
 
 
+def test_compare_by_shape_finds_a_difference_where_it_is(runs, tmp_path, capsys):
+    """--by-shape: the same paired differences within each target shape (the shape each test
+    seed draws); a study worse by 1 cm on one shape's trajectories only is worse there, equal
+    on the others, and worse by that shape's share overall."""
+    from panda_lead.trajectory import sample
+
+    shapes = [sample(s).shape for s in range(12)]
+    worse = shapes[0]
+    for study, extra in (("a", 0.0), ("b", 1.0)):
+        (tmp_path / study).mkdir()
+        for seed in (1, 2, 3):
+            err = [2.0 + 0.01 * seed + (extra if sh == worse else 0.0) for sh in shapes]
+            (tmp_path / study / f"seed_{seed}.json").write_text(json.dumps(
+                {"seed": seed, "run": f"r{seed}", "best": {"mean_error_cm": 2.0, "timesteps": 1},
+                 "best_model_sha256": "0" * 64, "timesteps": 1, "test_seeds": "0-11",
+                 "test": {"mean_err": err, "settled_err": err, "jerk_rms": [1.0] * 12}}))
+    runs.compare_studies(runs.Args(command="compare", study="b", against_study="a",
+                                   bootstrap=200, by_shape=True))
+    out = capsys.readouterr().out
+    diff = {line.split("|")[1].strip(): float(line.split("|")[4].split()[0])
+            for line in out.splitlines() if "error |" in line}
+    share = shapes.count(worse) / 12
+    assert diff["mean error"] == pytest.approx(share, abs=1e-3)  # printed to 0.001 cm
+    assert diff[f"{worse} (n={shapes.count(worse)}): mean error"] == pytest.approx(1.0)
+    for other in set(shapes) - {worse}:
+        assert diff[f"{other} (n={shapes.count(other)}): settled error"] == pytest.approx(0.0)
+    assert "--by-shape" in out
+
+
 def test_baselines_computes_only_the_rivals_the_file_lacks(runs, tmp_path, monkeypatch):
     """Adding a rival to BASELINES costs that rival's rollouts, not every baseline's again;
     with nothing missing the command says so, and --force recomputes all."""
