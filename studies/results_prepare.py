@@ -126,16 +126,18 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
         **{s: f"{s}*" for s in (*LARGE_BATCH, *CONTINUED) if s in EXTRA_SEEDS}}
+# the hardware model (README, "Which model for a real arm"): its share of its own oracle's gain
+HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
-               "preview_5m", "preview_continued_10m", "preview_finetuned_10m"]
+               "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE]
 # single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
 # device pilots on the deployment world's share of nominal episodes (docs/deploy.md)
 SEED_POLICY_SETS = SHARE_LADDER
 # the ILC oracle's rollout sets (test seeds 0-199): prefix -> the archived model it starts from
 ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
            "ilc_preview_continued": "preview_continued_10m",
-           "ilc_preview_finetuned": "preview_finetuned_10m"}
+           "ilc_preview_finetuned": "preview_finetuned_10m", "ilc_hardware": HARDWARE}
 
 
 def _run(root: Path, *argv: str) -> None:

@@ -519,7 +519,10 @@ def table_steps() -> list[Step]:
               _deploy_studies(fine, late, f"results/studies/{late}/test1000_none_delay1",
                               ("none", "delay1"), "0-999", "--check-from", "0.75"),
               _every_row(late, "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10",
-                         "deploy_large_batch_curv10_actions_stack4_15m_lp10")]
+                         "deploy_large_batch_curv10_actions_stack4_15m_lp10"),
+              # the hardware model's share of the gain its own oracle shows (issue 37's measure)
+              _with_oracle(late, "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10",
+                           "ilc_hardware")]
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
     # on all 1,000 test seeds, the noise rows against the filtered rival
