@@ -60,6 +60,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
 # study grown to five seeds under another sweep name)
 EXTRA_SEEDS = {"err_delayed": ["err_delayed_s3"], "v9_5m": ["v9_5m_s4"],
                "deploy_caps_armfilter_5m": ["deploy_caps_armfilter_5m_rest"],
+               "preview_feedforward_5m": ["preview_feedforward_5m_rest"],
                "deploy_large_batch_curv10_continued_5m": [
                    "deploy_large_batch_curv10_continued_5m_rest"],
                "deploy_large_batch_curv10_actions_stack4_continued_again_5m": [
@@ -115,9 +116,9 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
 KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": "noisy_5m",
         "v7": "v7", "deploy_lowpass_5m": "deploy_lowpass_5m", "preview_5m": "preview_5m",
         **{s: s for s in ("deploy_real_5m", "deploy_kalman_5m", "deploy_known_5m",
-                          "deploy_nominal_5m", "preview_feedforward_5m",
-                          "preview_feedforward_settled_5m", "deploy_armfilter_5m",
-                          "deploy_caps_5m", "deploy_unsmoothed_5m")},
+                          "deploy_nominal_5m", "preview_feedforward_settled_5m",
+                          "deploy_armfilter_5m", "deploy_caps_5m", "deploy_unsmoothed_5m")},
+        "preview_feedforward_5m": "preview_feedforward_5m*",
         "deploy_caps_armfilter_5m": "deploy_caps_armfilter_5m*",
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies

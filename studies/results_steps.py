@@ -317,6 +317,10 @@ def table_steps() -> list[Step]:
                        ("studies/runs.py", "compare", "--study", study, "--against-study",
                         "baseline:feedforward"), _runs(study, "baselines.json"), stdout=True)]
     steps.append(_compare("preview_feedforward_settled_5m", "preview_feedforward_5m"))
+    steps.append(Step(("results/studies/preview_feedforward_5m/vs_feedforward_by_shape.md",),
+                      ("studies/runs.py", "compare", "--study", "preview_feedforward_5m",
+                       "--against-study", "baseline:feedforward", "--by-shape"),
+                      _runs("preview_feedforward_5m", "baselines.json"), stdout=True))
     # the path ahead once the causal lead is learned: the headline study's seeds trained on
     # with it and without it (the control), against each other, their start and the rival
     # (and the same pair again with a gentle restart: the seeds' own exploration, lr 3e-4)
