@@ -531,23 +531,39 @@ def seed_models(study: str) -> dict[int, Path]:
             if (m := pattern.fullmatch(p.name))}
 
 
+def _kept_from(side: dict, summary: dict) -> bool:
+    """Whether a kept seed's sidecar names the run model ``summary`` measured: its source's
+    SHA-256 (kept since 2026-11-28), or for older keeps its source run folder's name (unique
+    per run: trial, seed and start time)."""
+    if "source_sha256" in side:
+        return side["source_sha256"] == summary["best_model_sha256"]
+    same_seed = (side.get("study"), side.get("seed")) == (summary.get("study"), summary["seed"])
+    return same_seed and Path(str(side.get("source", ""))).parent.name == summary["run"]
+
+
 def keep(args: Args) -> None:
     """Every seed's best model of a study into archive/seeds/<study>_s<N>.zip (weights and
     sidecar, no card: these are evaluated in tables, the chosen run is the one to use). Each
-    must be the model its committed summary was computed from (same SHA-256)."""
-    from panda_lead.models import archive_lock, copy_with_sidecar, pair_state
+    must be the model its committed summary was computed from (same SHA-256). A seed already
+    kept as that model needs no run folder: a study grown on another machine or under another
+    sweep name keeps its new seeds from the folders at hand."""
+    from panda_lead.models import archive_lock, copy_with_sidecar, pair_state, verify
 
     if not args.runs:
         raise UserError("keep needs --runs FOLDER..., the folders holding the study's run folders")
     for s in load_study(args.study, ("model",)):
-        src = _bound_best_model(s, args)
         dst = seed_path(args.study, s["seed"])
+        if not args.force and pair_state(dst) == "valid" and _kept_from(verify(dst), s):
+            print(f"{dst} exists (the model its summary measured; add --force to replace it)")
+            continue
+        src = _bound_best_model(s, args)
         dst.parent.mkdir(parents=True, exist_ok=True)
         with archive_lock(dst):
             if pair_state(dst) != "absent" and not args.force:
                 print(f"{dst} exists (add --force to replace it)")
                 continue
             copy_with_sidecar(src, dst, {"name": dst.stem, "source": str(src),
+                                         "source_sha256": s["best_model_sha256"],
                                          "study": args.study, "seed": s["seed"]})
         print(f"kept {dst}")
 

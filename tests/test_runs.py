@@ -212,6 +212,12 @@ def test_keep_commits_every_seed_only_if_it_is_the_model_its_summary_measured(
     capsys.readouterr()
     runs.keep(runs.Args("keep", study="s", runs=[sweep]))  # never replaced unasked
     assert capsys.readouterr().out.count("exists") == 2
+    # a seed kept as its summary's model needs no run folder (a study grown elsewhere)
+    shutil.rmtree(sweep / "r1")
+    runs.keep(runs.Args("keep", study="s", runs=[sweep]))
+    assert capsys.readouterr().out.count("the model its summary measured") == 2
+    with pytest.raises(runs.UserError, match="r1"):  # replacing it does need the run
+        runs.keep(runs.Args("keep", study="s", runs=[sweep], force=True))
 
 
 def test_a_study_is_compared_with_a_rival_from_the_baselines_file(runs, tmp_path, capsys):
