@@ -11,8 +11,13 @@ For each rollout, over the settled window (t >= 0.5 s, after the swing from the 
   (mm per control step), how much the lead itself moves: a chattering lead, one that flips
   back and forth, has a second difference larger than its step.
 Printed per shape and overall: the mean over rollouts, the median in brackets (cm; the lead
-columns mm), on the seeds every set holds. It reads rollout files only, under metrics.py's
-rules: sets that mix controllers or durations are refused, failed episodes are charged.
+columns mm), on the seeds every set holds. ``--agreement`` adds how far each set's lead is from
+the first set's on the same trajectory (settled window): the RMS of the difference and the
+length of its mean, beside the first set's lead RMS. Two ILC oracles started from different
+leads (`uv run studies/bias.py --prefixes ilc ilc_preview_finetuned --agreement`) say whether
+the ceiling's lead is one function of the trajectory or one of many that track as well.
+It reads rollout files only, under metrics.py's rules: sets that mix controllers or durations
+are refused, failed episodes are charged.
 """
 
 from __future__ import annotations
@@ -34,6 +39,8 @@ class Args:
     """Rollout sets (folders under --root) to compare."""
     root: Path = Path("rollouts")
     """Where the rollout sets live."""
+    agreement: bool = False
+    """Also each set's lead against the first set's, per trajectory (see above)."""
 
 
 def parts(r) -> tuple[float, float, float]:
@@ -55,6 +62,16 @@ def lead_steps(r) -> tuple[float, float]:
     lead = r.lead[r.t >= SETTLE_S - 1e-9]
     return (1000 * float(np.linalg.norm(np.diff(lead, axis=0), axis=1).mean()),
             1000 * float(np.linalg.norm(np.diff(lead, 2, axis=0), axis=1).mean()))
+
+
+def lead_agreement(r, ref) -> tuple[float, float, float]:
+    """(RMS of ref's lead, RMS of r's lead - ref's, |mean of r's lead - ref's|) over the
+    settled window, in cm."""
+    keep = ref.t >= SETTLE_S - 1e-9
+    d = (r.lead - ref.lead)[keep]
+    return (100 * float(np.sqrt(np.mean(np.sum(ref.lead[keep] ** 2, axis=1)))),
+            100 * float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))),
+            100 * float(np.linalg.norm(d.mean(axis=0))))
 
 
 def load_sets(prefixes: list[str], root: Path):
@@ -95,6 +112,20 @@ def main(args: Args) -> None:
             cells = " | ".join(f"{m:.2f} [{md:.2f}]" for m, md in
                                zip(rows.mean(axis=0), np.median(rows, axis=0), strict=True))
             print(f"| {shape} | {len(rows)} | {p} | {cells} |")
+    if args.agreement and len(sets) > 1:
+        first, ref = args.prefixes[0], sets[args.prefixes[0]]
+        print(f"\nEach set's lead against {first}'s on the same trajectory, t >= {SETTLE_S} s; "
+              "mean over rollouts [median], cm\n")
+        print(f"| shape | n | set | {first}'s lead RMS | RMS of the difference | "
+              "constant difference |")
+        print("|---|---|---|---|---|---|")
+        for shape in [*shapes, "all"]:
+            for p in args.prefixes[1:]:
+                rows = np.array([lead_agreement(r, ref[seed]) for seed, r in sets[p].items()
+                                 if shape in ("all", r.shape)])
+                cells = " | ".join(f"{m:.2f} [{md:.2f}]" for m, md in
+                                   zip(rows.mean(axis=0), np.median(rows, axis=0), strict=True))
+                print(f"| {shape} | {len(rows)} | {p} | {cells} |")
 
 
 if __name__ == "__main__":

@@ -527,6 +527,12 @@ def table_steps() -> list[Step]:
               # the hardware model's share of the gain its own oracle shows (issue 37's measure)
               _with_oracle(late, "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10",
                            "ilc_hardware")]
+    # is the ceiling's lead one function of the trajectory? three oracles started from three
+    # leads (the headline, the gentle preview lead, the hardware model), test seeds 0-199
+    oracles = ("ilc", "ilc_preview_finetuned", "ilc_hardware")
+    steps.append(Step(("results/studies/ilc/agreement.md",),
+                      ("studies/bias.py", "--prefixes", *oracles, "--agreement"),
+                      tuple(f"rollouts/{o}" for o in oracles), stdout=True, section="all"))
     # ... its chosen seed (the selection rule), with the hardware model's 10 Hz low-pass under
     # noise (eval.py --adopt, the cutoff not re-tuned), against the hardware model: every row
     # on all 1,000 test seeds, the noise rows against the filtered rival

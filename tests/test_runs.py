@@ -78,6 +78,18 @@ def test_bias_py_splits_a_known_offset_from_a_known_wobble(monkeypatch):
     for lead, expected in ((flip, (20.0, 40.0)), (drift, (1.0, 0.0))):
         r.lead = lead
         assert bias.lead_steps(r) == pytest.approx(expected, abs=1e-9)
+    # --agreement: a lead 3 cm off another's everywhere differs by 3 cm, all of it constant;
+    # one that flips +-1 cm around it differs by 1 cm RMS and by nothing constant
+    import copy
+
+    ref = copy.copy(r)
+    ref.lead = np.tile([0.04, 0.0, 0.0], (n, 1))
+    shifted, flipped = copy.copy(r), copy.copy(r)
+    shifted.lead = ref.lead + [0.0, 0.0, 0.03]
+    flipped.lead = ref.lead + flip
+    assert bias.lead_agreement(shifted, ref) == pytest.approx((4.0, 3.0, 3.0), abs=1e-9)
+    lead_rms, rms, const = bias.lead_agreement(flipped, ref)
+    assert (lead_rms, rms) == pytest.approx((4.0, 1.0), abs=1e-9) and const < 0.01
 
 
 def test_curve_draws_the_studies_beside_references_computed_on_the_same_episodes(
