@@ -131,18 +131,18 @@ def child_env() -> dict:
     return env
 
 
-def run_step(name: str, cmd: list[str], limit_s: float, log: Log, cpus: set[int] | None = None
-             ) -> tuple[int | None, float, float, str]:
-    """Run one command with a time limit (on the cores ``cpus`` only, if given): (exit status or
-    None when killed at the limit, wall s, peak PSS MB, its output). Its output goes to the log
-    as it comes."""
+def run_step(name: str, cmd: list[str], limit_s: float, log: Log, cpus: set[int] | None = None,
+             cwd: Path = REPO) -> tuple[int | None, float, float, str]:
+    """Run one command in ``cwd`` with a time limit (on the cores ``cpus`` only, if given):
+    (exit status or None when killed at the limit, wall s, peak PSS MB, its output). Its output
+    goes to the log as it comes."""
     from bench import _tree_pss_mb as tree_pss_mb  # (studies/ is this script's folder)
 
     log(f"\n=== {name}: {' '.join(cmd)} (limit {limit_s:.0f} s"
         + (f", cores {min(cpus)}-{max(cpus)})" if cpus else ")"))
     t = time.perf_counter()
     pin = (lambda: os.sched_setaffinity(0, cpus)) if cpus else None
-    proc = subprocess.Popen(cmd, cwd=REPO, env=child_env(), stdout=subprocess.PIPE,
+    proc = subprocess.Popen(cmd, cwd=cwd, env=child_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True,
                             preexec_fn=pin)
     lines: list[str] = []
@@ -318,17 +318,20 @@ def steps_2_to_4(args, log, work, cuda, small, row, artifacts) -> None:
     # 2. --device cuda end to end: train with the profile it picks, resume, archive.
     e2e = work / "e2e"
     one = 512 if args.small else 16384  # one rollout of the profile's collection
-    archived = f"{cuda}_e2e"  # cuda_e2e on the device; a dry run's cpu_e2e is deleted below
+    archived = f"{cuda}_e2e"  # cuda_e2e into the device's checkout
+    # A dry run (no GPU) archives into its scratch folder: it leaves the checkout's archive/
+    # as it was, and two dry runs at once (the slow tests on two workers) never meet there.
+    home = REPO if cuda == "cuda" else work
     status, _, _, _ = run_step("e2e_train", train_cmd(
         "--device", cuda, *small, "--timesteps", str(2 * one), "--eval-freq", str(one),
         "--checkpoint-freq", str(one), "--runs-dir", str(e2e), "--name", archived,
-        "--seed", "7"), 120, log)
+        "--seed", "7"), 120, log, cwd=home)
     runs = sorted(e2e.glob(f"{archived}*"))
     if status == 0 and runs:
         status, _, _, _ = run_step("e2e_resume_archive", train_cmd(
             "--resume", str(runs[0]), "--timesteps", str(4 * one), "--device", cuda,
-            "--archive", archived, "--force"), 120, log)
-    shipped = [REPO / "archive" / f"{archived}{suffix}" for suffix in (".zip", ".json", ".md")]
+            "--archive", archived, "--force"), 120, log, cwd=home)
+    shipped = [home / "archive" / f"{archived}{suffix}" for suffix in (".zip", ".json", ".md")]
     artifacts += [(f, f"archive/{f.name}") for f in shipped if status == 0 and f.is_file()]
     row(f"`--device {cuda}` end to end: train {2 * one:,} steps (the profile `--device` picks), "
         f"resume to {4 * one:,}, archive", "ok" if status == 0 else f"failed (exit {status}; log.txt)")
@@ -455,12 +458,6 @@ def finish(args, log, info, cores, rows, artifacts, t_start) -> None:
     with tarfile.open(args.out / "artifacts.tar.gz", "w:gz") as tar:
         for path, name in artifacts:
             tar.add(path, arcname=name)
-    # A dry run leaves nothing in the checkout's archive/: it removes the cpu_e2e its own end
-    # to end step archived, and only then (a --quality-only plan beside a full one, as the
-    # slow tests run on two workers, removed the other's model before it was packed).
-    if not info.get("gpu") and not args.quality_only:
-        for f in (REPO / "archive").glob("cpu_e2e.*"):
-            f.unlink()
     log("\n" + table)
 
 
