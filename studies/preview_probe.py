@@ -17,6 +17,7 @@ trajectories held out.
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -120,11 +121,7 @@ def main(args: Args) -> None:
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=ROOT).stdout.strip()
-    flags = "" if args.probe_n == Args.probe_n else f" --probe-n {args.probe_n}"
-    if args.fit_seeds != Args.fit_seeds:
-        flags += " --fit-seeds " + " ".join(map(str, args.fit_seeds))
-    if args.preview_times != Args.preview_times:
-        flags += " --preview-times " + " ".join(f"{h:g}" for h in args.preview_times)
+    flags = "".join(f" {shlex.quote(w)}" for w in sys.argv[1:])  # the stamp: the command as run
     wide = student_config(STUDENT_FEATURES + ("tip_error_avg", "joint_pos", "joint_vel"), 500)
     seeds = list(range(DISTILL_SEEDS.stop - DISTILL_SLICE, DISTILL_SEEDS.stop))[:args.probe_n]
     leads, hist = learn_leads(wide, seeds, None, ILCConfig(),

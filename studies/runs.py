@@ -298,16 +298,16 @@ def compare_studies(args: Args) -> None:
     from panda_lead.metrics import bootstrap_verdicts, two_level_bootstrap
 
     rng = np.random.default_rng(0)
+    metrics = {key: (name, np.array([s["test"][key] for s in a]),  # (seeds, trajectories)
+                     np.array([s["test"][key] for s in b]))
+               for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
+                                 ("jerk_rms", "jerk RMS"))}
 
-    def rows(keep: np.ndarray | None, label: str = "") -> list[str]:
-        """One row per metric over the trajectories ``keep`` selects (all when None)."""
+    def rows(keep: np.ndarray | slice, label: str = "") -> list[str]:
+        """One row per metric over the trajectories ``keep`` selects."""
         lines, cis, resamples = [], [], []
-        for key, name in (("mean_err", "mean error"), ("settled_err", "settled error"),
-                          ("jerk_rms", "jerk RMS")):
-            ma = np.array([s["test"][key] for s in a])  # (seeds, trajectories)
-            mb = np.array([s["test"][key] for s in b])
-            if keep is not None:
-                ma, mb = ma[:, keep], mb[:, keep]
+        for name, ma, mb in metrics.values():
+            ma, mb = ma[:, keep], mb[:, keep]
             d = mb.mean(axis=0) - ma.mean(axis=0)
             (lo, hi), boots = two_level_bootstrap(ma, mb, args.bootstrap, rng)
             cis.append((lo, hi))
@@ -319,7 +319,7 @@ def compare_studies(args: Args) -> None:
         verdicts = bootstrap_verdicts(cis, resamples, d.size)
         return [line.format(verdict=v) for line, v in zip(lines, verdicts, strict=True)]
 
-    lines = rows(None)
+    lines = rows(slice(None))
     if args.by_shape:
         from panda_lead.seeds import parse_seed_range
         from panda_lead.trajectory import sample

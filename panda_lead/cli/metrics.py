@@ -152,14 +152,14 @@ def oracle_lines(args: Args, cmp: Comparison) -> list[str]:
     lines = [f"share of the achievable gain captured, {args.label_b} between {args.label_a} "
              f"and the oracle ({args.oracle}, n={len(seeds)} seeds; 1 = the oracle's error, "
              "0 = no gain over A):"]
-    # with --breakdown, also per target shape: where the gain left to capture sits
-    shape_of = {s: cmp.pairing.scored[cmp.label_a][s].shape for s in seeds}
-    groups = [("", seeds)] + ([(f"shape {sh} (n={sum(v == sh for v in shape_of.values())}), ",
-                                [s for s in seeds if shape_of[s] == sh])
-                               for sh in sorted(set(shape_of.values()))] if args.breakdown else [])
+    groups = [("", seeds)]
+    if args.breakdown:  # also per target shape: where the gain left to capture sits
+        shape_of = {s: cmp.pairing.scored[cmp.label_a][s].shape for s in seeds}
+        for shape in sorted(set(shape_of.values())):
+            group = [s for s in seeds if shape_of[s] == shape]
+            if len(group) >= 2:
+                groups.append((f"shape {shape} (n={len(group)}), ", group))
     for prefix, group in groups:
-        if len(group) < 2:
-            continue
         for key, name in (("mean_err", "mean error"), ("settled_err", "settled mean error")):
             col = [np.array([m[s][key] for s in group])
                    for m in (cmp.metrics_a, cmp.metrics_b, om)]
