@@ -409,3 +409,28 @@ def test_the_collection_forward_is_sb3s_bit_for_bit(deterministic):
         outputs.append((*out, torch.randn(3)))  # the draw after it: the stream's state
     for a, b in zip(*outputs, strict=True):
         assert a.shape == b.shape and torch.equal(a, b)
+
+
+def test_the_profiles_sigmoid_tanh_is_tanh_to_float32_rounding():
+    """studies/profile_update.py's sigtanh what-if (tanh as 2 sigmoid(2x) - 1) computes the same
+    function and gradient as torch.tanh to within float32 rounding, and reaches every tanh of
+    both networks; otherwise its timing would be of another network."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
+    from profile_update import sigmoid_tanh, use_sigmoid_tanh
+
+    x = torch.cat([torch.linspace(-20, 20, 40001), torch.randn(1000) * 1e-4]).requires_grad_()
+    ours, theirs = sigmoid_tanh()(x), torch.tanh(x)
+    assert (ours - theirs).abs().max() < 3e-7
+    (g_ours,) = torch.autograd.grad(ours.sum(), x)
+    (g_theirs,) = torch.autograd.grad(theirs.sum(), x)
+    assert (g_ours - g_theirs).abs().max() < 1e-6
+    model, vec = _collected()
+    vec.close()
+    nets = (model.policy.mlp_extractor.policy_net, model.policy.mlp_extractor.value_net)
+    assert sum(type(layer) is torch.nn.Tanh for net in nets for layer in net) == 4
+    use_sigmoid_tanh(model.policy)
+    assert not any(type(layer) is torch.nn.Tanh for net in nets for layer in net)
+    assert sum(type(layer).__name__ == "SigmoidTanh" for net in nets for layer in net) == 4
