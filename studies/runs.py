@@ -9,7 +9,7 @@ recomputed from git alone (run folders stay out of git: they are large and machi
     uv run studies/runs.py compare --study v5_joint --against-study v5  # two studies, paired
     uv run studies/runs.py compare --study preview_5m --against-study baseline:feedforward
     uv run studies/runs.py rates --study v5          # the baselines at 100 Hz and 500 Hz
-    uv run studies/runs.py rank                      # which study's model is the headline
+    uv run studies/runs.py rank                      # studies by evaluation-set error (old rule)
     uv run studies/runs.py curve --studies ikfree_long ikfree \
         --plot results/studies/ikfree_long/curve.png
     uv run studies/runs.py diagnostics --csv results/studies/ikfree_long/diagnostics.csv  # PPO's health
@@ -27,9 +27,11 @@ and its sidecar), for the tables that evaluate each seed and not only the chosen
 
 The choice rule (`choose`): the run with the lowest best evaluation-set error (never a test
 seed); a tie (equal to 0.01 cm, the printed precision) goes to the lower training seed.
-The headline rule (`rank`): among studies of at least 3 seeds, the one whose seeds' best
-evaluation-set errors have the lowest mean (one lucky seed on 15 evaluation trajectories does
-not make a configuration better); its chosen run is the headline model.
+The evaluation-set order (`rank`), the headline rule until 2026-11-26: among studies of at
+least 3 seeds, the one whose seeds' best evaluation-set errors have the lowest mean (one lucky
+seed on 15 evaluation trajectories does not make a configuration better), and its chosen run.
+Since 2026-11-26 the headline is chosen by the selection rule instead (`studies/selection.py
+rank`, results/studies/rank/rank.md): 15 trajectories could not separate the studies.
 """
 
 from __future__ import annotations
@@ -582,10 +584,12 @@ def rank(args: Args) -> None:
     preview.sort(key=lambda r: r[0])
     eligible = [r for r in rows if len(r[2]) >= 3]
     print("Studies by the mean of their seeds' best evaluation-set error (15 trajectories, "
-          "never a test seed); the headline is the first with >= 3 seeds, its chosen run the "
-          "model. Studies that know the planned path are ranked apart, after. "
-          "`uv run studies/runs.py rank`\n")
-    for title, group in (("", rows), ("\nKNOWS THE PLANNED PATH (never the headline)\n", preview)):
+          "never a test seed); **first** marks the first with >= 3 seeds, which was the "
+          "headline until 2026-11-26. Since then the headline is chosen by the selection rule "
+          "(`uv run studies/selection.py rank`, results/studies/rank/rank.md): this order is "
+          "kept for the history it explains. Studies that know the planned path are ranked "
+          "apart, after. `uv run studies/runs.py rank`\n")
+    for title, group in (("", rows), ("\nKNOWS THE PLANNED PATH (never first)\n", preview)):
         if not group:
             continue
         print(title)
@@ -594,7 +598,7 @@ def rank(args: Args) -> None:
         print("|---|---|---|---|---|---|---|")
         for mean, name, runs, evals in group:
             c = choose_run(runs)
-            mark = " **headline**" if eligible and name == eligible[0][1] else ""
+            mark = " **first**" if eligible and name == eligible[0][1] else ""
             print(f"| {name}{mark} | {len(runs)} | {', '.join(f'{e:.2f}' for e in evals)} | "
                   f"{mean:.2f} | {c['seed']} | {np.mean(c['test']['mean_err']):.2f} | "
                   f"{np.mean(c['test']['settled_err']):.2f} |")

@@ -78,7 +78,7 @@ def test_12_a_nan_best_never_ranks_or_chooses(runs, tmp_path, capsys):
             runs.choose_run(runs.load_study("s"))
         with pytest.raises(UserError, match="seed_1.json"):
             runs.rank(runs.Args(command="rank"))
-    assert "headline" not in capsys.readouterr().out
+    assert "**first**" not in capsys.readouterr().out
     with pytest.raises(UserError, match="not a finite number"):  # the last guard, in the rule
         runs.choose_run([{"seed": 1, "best": {"mean_error_cm": math.nan}}, summary(2, 2.5)])
 

@@ -38,7 +38,7 @@ def test_a_tie_on_the_evaluation_set_goes_to_the_lower_seed(runs, tmp_path):
     assert runs.choose_run(runs.load_study("t"))["seed"] == 3  # 1.99 < 2.01
 
 
-def test_the_headline_is_the_lowest_mean_evaluation_error_of_a_study_of_three_seeds(
+def test_the_first_is_the_lowest_mean_evaluation_error_of_a_study_of_three_seeds(
         runs, tmp_path, capsys):
     write_study(tmp_path, "lucky", {1: 1.50, 2: 2.60, 3: 2.60}, 1.0)  # one lucky seed
     write_study(tmp_path, "steady", {1: 2.00, 2: 2.01, 3: 2.02}, 3.0)
@@ -47,7 +47,7 @@ def test_the_headline_is_the_lowest_mean_evaluation_error_of_a_study_of_three_se
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ")]
     names = [line.split("|")[1].strip() for line in lines[1:]]
     # ordered by mean evaluation error, the headline never chosen on test numbers
-    assert names == ["single", "steady **headline**", "lucky"]
+    assert names == ["single", "steady **first**", "lucky"]
 
 
 def test_bias_py_splits_a_known_offset_from_a_known_wobble(monkeypatch):
@@ -307,7 +307,7 @@ def test_baselines_computes_only_the_rivals_the_file_lacks(runs, tmp_path, monke
     assert len(played) == len(runs.BASELINES)
 
 
-def test_a_study_that_knows_the_path_is_never_the_headline(runs, tmp_path, capsys):
+def test_a_study_that_knows_the_path_is_never_first(runs, tmp_path, capsys):
     """Issue 37: the preview variant is ranked apart, after the causal studies, however low its
     evaluation errors."""
     write_study(tmp_path, "causal", {1: 2.0, 2: 2.0, 3: 2.0}, 2.0)
@@ -319,5 +319,5 @@ def test_a_study_that_knows_the_path_is_never_the_headline(runs, tmp_path, capsy
     runs.rank(runs.Args(command="rank"))
     out = capsys.readouterr().out
     causal, apart = out.split("KNOWS THE PLANNED PATH")
-    assert "| causal **headline** |" in causal and "ahead" not in causal
+    assert "| causal **first** |" in causal and "ahead" not in causal
     assert "| ahead |" in apart
