@@ -28,7 +28,8 @@ figure under results/ is listed here, except the run summaries and the supersede
 - `studies/<study>/`: a training study's spread over its seeds (`spread.md`), its comparisons
   with other studies over all their seeds (`vs_<study>.md`), its curves and PPO diagnostics;
   `studies/<question>/` (delay, noise, collision, ilc, tau, ttq, rederive, soak) for the side
-  questions; `studies/rank.md`, the headline rule applied to every study.
+  questions; `studies/rank/rank.md`, the headline rule (the selection set) applied to every study;
+  `studies/rank.md`, the evaluation-set order that was the rule until 2026-11-26.
 - `bench/`: speed and memory ([docs/performance.md](../docs/performance.md)).
 - `history/`: superseded generations, rebuilt by nothing ([history/README.md](history/README.md)).
 - `runs/`: one committed summary per training run (`studies/runs.py summarize`), the input of
