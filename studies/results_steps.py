@@ -40,7 +40,8 @@ BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_
                 "deploy_large_batch_curv10_actions_stack4_finetuned_5m",
                 "v5_err_decay_preview_finetuned_5m",
                 "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m",
-                "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"}
+                "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m",
+                "preview_feedforward_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
