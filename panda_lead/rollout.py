@@ -463,8 +463,8 @@ def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
 
 def identity(meta: dict) -> tuple:
     """What makes two rollouts the same controller: its name, its model's hash (not the path
-    it was given by), its settings (the analytic lead's tau, the oracle's) and the env it ran
-    on, less the episode length. The rollout writer and metrics.py both use this rule."""
+    it was given by), its settings (the analytic lead's tau, the oracle's, an online
+    correction's: panda_lead/online.py) and the env it ran on, less the episode length. The rollout writer and metrics.py both use this rule."""
     from .config import EnvConfig
 
     env = meta.get("env") or {}
@@ -475,4 +475,5 @@ def identity(meta: dict) -> tuple:
     env = {**env, "episode_steps": None} if isinstance(env, dict) else env
     return (meta.get("controller"), meta.get("model_sha256"),
             json.dumps(meta.get("tau")), json.dumps(meta.get("ilc"), sort_keys=True),
+            json.dumps(meta.get("online"), sort_keys=True),
             json.dumps(env, sort_keys=True, default=str))

@@ -289,6 +289,9 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
     ("studies/bench.py", ["--repeats", "x"], ["--repeats: invalid literal for int()"]),
     ("studies/soak.py", ["--bogus"], ["Unrecognized options: --bogus"]),
     ("studies/profile_update.py", ["--variants", "fats"], ["unknown variant 'fats'"]),
+    ("studies/online_correction.py", ["play", "--seeds", "0-9"], ["play needs --prefix"]),
+    ("studies/online_correction.py", ["play", "--prefix", "x", "--gain", "-1"],
+     ["must be finite and >= 0"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the

@@ -29,14 +29,17 @@ POLICY_ACTION_LABELS = {"joint": "RL+Joint residual", "joint_target": "RL joint 
 
 
 def controller_label(rollouts: dict, prefix: str) -> str:
-    """A set's display name: from the controller its rollouts record (a policy by its action),
-    else from its usual prefix (ikpd, analytic, eval), else the prefix itself."""
+    """A set's display name: from the controller its rollouts record (a policy by its action,
+    an online correction after it), else from its usual prefix (ikpd, analytic, eval), else the prefix itself."""
     kinds = {r.meta.get("controller") for r in rollouts.values()}
     known = CONTROLLER_LABELS.get(kinds.pop()) if len(kinds) == 1 else None
     if known == "RL+Lead":
         envs = [r.meta.get("env") for r in rollouts.values()]
         actions = {e.get("action", "lead") if isinstance(e, dict) else "lead" for e in envs}
         known = POLICY_ACTION_LABELS.get(actions.pop(), known) if len(actions) == 1 else known
+    online = {(r.meta.get("online") or {}).get("kind") for r in rollouts.values()}
+    if known and len(online) == 1 and None not in online:  # panda_lead/online.py's corrections
+        known = f"{known} + {online.pop()}"
     return known or DEFAULT_LABELS.get(prefix, prefix)
 
 

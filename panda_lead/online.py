@@ -1,0 +1,104 @@
+"""Online corrections a control engineer adds on top of any Cartesian lead (issue 37's "a lead
+of another kind"): each wraps a controller's ``act(obs, task)`` and adds a correction (m) to
+its lead, learned within the episode from the tip's tracking error e = target - tip.
+
+- **integral**: c(t) = k_i * sum of e dt since ``start`` s. Causal: it cancels what stays
+  constant over a trajectory (the bias the oracle's lead holds, docs/questions.md 9).
+- **repetitive** (lap to lap): every path here is a closed loop with a known lap time T
+  (trajectory params["lap_time"]), so the error one lap ago says what to add now:
+  c(t) = Q[c(t - T) + k * e(t - T + advance)], with ``advance`` control steps of phase lead
+  for the servos' lag, learning only from errors after ``start`` s (the swing from the home
+  pose is no lap); Q averages over +-``smooth`` steps around those instants (a lap ago, so
+  all of them are past), the low-pass that keeps a repetitive controller from amplifying
+  what the servos cannot follow lap after lap. It knows the planned path's period, so it is
+  a preview controller.
+
+Both are settings, never trained: studies/online_correction.py tunes them on the tuning seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+KINDS = ("integral", "repetitive")
+
+
+@dataclass(frozen=True)
+class OnlineCorrection:
+    kind: str
+    gain: float  # k_i (1/s) for integral, k (per lap) for repetitive
+    advance: int = 0  # repetitive: control steps of phase lead
+    smooth: int = 0  # repetitive: Q's half-width (control steps)
+    start: float = 0.5  # s: errors before this are not learned from
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown online correction {self.kind!r}; choose from {KINDS}")
+        if not (np.isfinite(self.gain) and self.gain >= 0 and self.advance >= 0
+                and self.smooth >= 0 and self.start >= 0):
+            raise ValueError(f"online correction settings must be finite and >= 0: {self}")
+
+    @property
+    def knows_path(self) -> bool:
+        return self.kind == "repetitive"
+
+    def meta(self) -> dict:
+        return asdict(self)
+
+
+def wrap(act, correction: OnlineCorrection):
+    """``act`` with ``correction`` added to its lead (clipped to the lead's bound). The state
+    is per episode slot, cleared when a slot's episode starts (its time is 0)."""
+    state: dict = {}
+
+    def corrected(obs, task) -> np.ndarray:
+        action = np.asarray(act(obs, task), dtype=np.float64)
+        if task.config.action != "lead":
+            raise ValueError("an online correction adds to a Cartesian lead: action 'lead'")
+        n, dt = len(action), task.dt
+        steps = np.rint(np.asarray(task.core.time) / dt).astype(int)  # this step's index
+        horizon = task.config.episode_steps + 1
+        if state.get("n") != n:
+            state.update(n=n, c=np.zeros((n, horizon, 3)), e=np.zeros((n, horizon, 3)),
+                         integral=np.zeros((n, 3)))
+        fresh = steps == 0
+        state["c"][fresh], state["e"][fresh], state["integral"][fresh] = 0.0, 0.0, 0.0
+        pos = task.core.target()[0]
+        error = pos - task.core.tip_pos
+        rows = np.arange(n)
+        state["e"][rows, steps] = error
+        if correction.kind == "integral":
+            on = (steps * dt >= correction.start)[:, None]
+            state["integral"] += np.where(on, error * dt, 0.0)
+            c = correction.gain * state["integral"]
+        else:
+            lap = np.array([tr.params["lap_time"] for tr in task.trajs]) / dt  # in steps
+            c = np.zeros((n, 3))
+            shifts = range(-correction.smooth, correction.smooth + 1)
+            for j in shifts:  # Q: the mean over the window
+                c_then, has_c = _at(state["c"], steps - lap + j, steps)
+                src = steps - lap + correction.advance + j
+                e_then, has_e = _at(state["e"], src, steps)
+                learn = has_e & (src * dt >= correction.start)
+                c += np.where(has_c[:, None], c_then, 0.0) + np.where(
+                    learn[:, None], correction.gain * e_then, 0.0)
+            c /= len(shifts)
+        state["c"][rows, steps] = c
+        max_lead = task.config.max_lead
+        return np.clip(action + c / max_lead, -1.0, 1.0).astype(np.float32)
+
+    return corrected
+
+
+def _at(buffer: np.ndarray, index: np.ndarray, now: np.ndarray):
+    """Each slot's buffer at fractional step ``index`` (linear between steps), and whether both
+    steps are recorded already (0 <= index, index's next step <= now)."""
+    lo = np.floor(index).astype(int)
+    ok = (lo >= 0) & (lo + 1 <= now)
+    lo = np.clip(lo, 0, buffer.shape[1] - 2)
+    frac = (index - np.floor(index))[:, None]
+    rows = np.arange(len(index))
+    value = buffer[rows, lo] * (1 - frac) + buffer[rows, lo + 1] * frac
+    return value, ok
