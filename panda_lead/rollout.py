@@ -464,7 +464,8 @@ def _play(task, obs, act_fn, meta, on_step=None) -> list[Rollout]:
 def identity(meta: dict) -> tuple:
     """What makes two rollouts the same controller: its name, its model's hash (not the path
     it was given by), its settings (the analytic lead's tau, the oracle's, an online
-    correction's: panda_lead/online.py) and the env it ran on, less the episode length. The rollout writer and metrics.py both use this rule."""
+    correction's: panda_lead/online.py) and the env it ran on, less the episode length. The
+    rollout writer and metrics.py both use this rule."""
     from .config import EnvConfig
 
     env = meta.get("env") or {}

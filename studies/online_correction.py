@@ -4,19 +4,25 @@ then play the tuned one on any seeds as a rollout set that metrics.py compares l
     uv run studies/online_correction.py tune > results/studies/online/tuning.md
     uv run studies/online_correction.py play --kind repetitive --gain 0.3 --advance 15 \\
         --seeds 0-999 --prefix headline_repetitive
+    uv run studies/online_correction.py summary --pairs kept_s1:kept_s1_repetitive ...
 
 ``tune`` plays every setting of both kinds on the 50 tuning seeds (5 s episodes, one batch
 each) on top of the lead (--base policy: the model, the headline by default; --base analytic:
 the analytic lead), and prints mean and settled error (t >= 0.5 s) beside the lead alone;
 the lowest settled error of each kind is its tuned setting. ``play`` writes the lead with one
 correction as rollouts/<prefix>/ (the set's files record the correction; a repetitive one
-is labelled as knowing the planned path).
+is labelled as knowing the planned path). ``summary`` reads pairs of rollout sets (each training
+seed's model alone and with the correction, the same test seeds) and prints each seed's mean
+and settled error, the study's mean over seeds, and corrected minus alone with a two-level
+bootstrap CI (trajectories and training seeds resampled, the two sides' seeds independently:
+a conservative CI for seeds that are in fact paired); failed episodes charged as metrics.py
+charges them.
 """
 
 from __future__ import annotations
 
 import subprocess
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -28,8 +34,9 @@ from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["tune", "play"]]
-    """tune: the grid on the tuning seeds; play: one setting as a rollout set."""
+    command: tyro.conf.Positional[Literal["tune", "play", "summary"]]
+    """tune: the grid on the tuning seeds; play: one setting as a rollout set; summary: a
+    five-seed study's sets with and without a correction (--pairs)."""
     base: Literal["policy", "analytic"] = "policy"
     """The lead the correction adds to: a PPO model (--model) or the analytic lead."""
     model: Path | None = None
@@ -56,6 +63,10 @@ class Args:
     """play: the rollout set's name under rollouts/."""
     force: bool = False
     """play: replace a set played by another controller."""
+    pairs: list[str] = field(default_factory=list)
+    """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
+    bootstrap: int = 10000
+    """summary: resamples of the two-level bootstrap."""
 
 
 def _base(args: Args):
@@ -138,9 +149,55 @@ def play(args: Args) -> None:
     print(f"wrote {n} rollouts to {ROLLOUT_DIR / args.prefix}/")
 
 
+def _set_metrics(prefix: str) -> dict[int, dict[str, float]]:
+    from panda_lead.metrics.pairing import charged, load_set
+    from panda_lead.metrics.stats import rollout_metrics
+    from panda_lead.rollout import ROLLOUT_DIR
+
+    return {seed: rollout_metrics(charged(r)[0]) for seed, r in
+            load_set(prefix, ROLLOUT_DIR).items()}
+
+
+def summary(args: Args) -> None:
+    from panda_lead.metrics.pairing import seed_set_title
+    from panda_lead.metrics.stats import shown, two_level_bootstrap
+
+    if not args.pairs or any(p.count(":") != 1 for p in args.pairs):
+        raise UserError("summary needs --pairs PLAIN:CORRECTED ... (rollout-set prefixes)")
+    sets = [tuple(_set_metrics(x) for x in p.split(":")) for p in args.pairs]
+    seeds = sorted(set.intersection(*(set(a) & set(b) for a, b in sets)))
+    if not seeds:
+        raise UserError("the pairs' rollout sets share no trajectory seed")
+    print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}`: "
+          f"{seed_set_title(seeds, 'trajectories')}; cm, settled from 0.5 s; the corrected "
+          "minus the plain set.\n")
+    print("| pair | mean error, plain | with the correction | settled, plain | with the "
+          "correction | settled diff |\n|---|---|---|---|---|---|")
+    arrays = {k: ([], []) for k in ("mean_err", "settled_err")}
+    for pair, (a, b) in zip(args.pairs, sets, strict=True):
+        for k, (plain, corrected) in arrays.items():
+            plain.append([a[s][k] for s in seeds])
+            corrected.append([b[s][k] for s in seeds])
+        m = {k: (np.mean(v[0][-1]), np.mean(v[1][-1])) for k, v in arrays.items()}
+        print(f"| {pair} | {m['mean_err'][0]:.3f} | {m['mean_err'][1]:.3f} | "
+              f"{m['settled_err'][0]:.3f} | {m['settled_err'][1]:.3f} | "
+              f"{m['settled_err'][1] - m['settled_err'][0]:+.3f} |")
+    print()
+    rng = np.random.default_rng(0)
+    for k, label in (("mean_err", "mean error"), ("settled_err", "settled error")):
+        plain, corrected = (np.array(x) for x in arrays[k])
+        per_seed = [x.mean(axis=1) for x in (plain, corrected)]
+        ci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, rng)
+        diff = corrected.mean() - plain.mean()
+        print(f"- {label}: plain {per_seed[0].mean():.3f} +- {per_seed[0].std(ddof=1):.3f}, with "
+              f"the correction {per_seed[1].mean():.3f} +- {per_seed[1].std(ddof=1):.3f} (mean "
+              f"+- std over the {len(sets)} seeds); diff {diff:+.3f} [{ci[0]:+.3f}, "
+              f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}")
+
+
 def main() -> None:
     args = parse_cli(Args, description=__doc__)
-    (tune if args.command == "tune" else play)(args)
+    {"tune": tune, "play": play, "summary": summary}[args.command](args)
 
 
 if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2

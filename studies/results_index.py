@@ -27,7 +27,7 @@ figure under results/ is listed here, except the run summaries and the supersede
   `with_oracle.md`, `headline.png`...
 - `studies/<study>/`: a training study's spread over its seeds (`spread.md`), its comparisons
   with other studies over all their seeds (`vs_<study>.md`), its curves and PPO diagnostics;
-  `studies/<question>/` (delay, noise, collision, ilc, tau, ttq, rederive, soak) for the side
+  `studies/<question>/` (delay, noise, collision, ilc, online, tau, ttq, rederive, soak) for the side
   questions; `studies/rank/rank.md`, the headline rule (the selection set) applied to every study;
   `studies/rank.md`, the evaluation-set order that was the rule until 2026-11-26.
 - `bench/`: speed and memory ([docs/performance.md](../docs/performance.md)).

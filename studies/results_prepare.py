@@ -143,6 +143,40 @@ ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
            "ilc_preview_finetuned": "preview_finetuned_10m", "ilc_hardware": HARDWARE}
 
 
+# online corrections on top of a lead (studies/online_correction.py; settings tuned on the tuning
+# seeds: results/studies/online/tuning_*.md): prefix -> (base, archived model or None, kind,
+# gain, advance, smooth); the plain sets of the headline study's five seeds beside them
+ONLINE_REPETITIVE = ("repetitive", 0.3, 15, 0)  # tuning_headline.md
+ONLINE_PLAIN = {f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)}
+ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
+          "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
+          **{f"{p}_repetitive": ("policy", m, *ONLINE_REPETITIVE) for p, m in ONLINE_PLAIN.items()}}
+
+
+def _online_sets(root: Path) -> None:
+    """Each online set (re)played when missing, or played by another model or setting."""
+    from panda_lead.rollout import read_meta
+
+    for prefix, model in ONLINE_PLAIN.items():
+        want = _archived_sha(root, model)
+        if want and _set_model(root, prefix) != want:
+            _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
+                 f"archive/{model}.zip", "--force")
+    for prefix, (base, model, kind, gain, advance, smooth) in ONLINE.items():
+        files = sorted((root / "rollouts" / prefix).glob("seed_*.npz"))
+        meta = read_meta(files[0]) if files else {}
+        setting = (meta.get("online") or {})
+        current = (setting.get("kind"), setting.get("gain"), setting.get("advance"),
+                   setting.get("smooth"))
+        stale = current != (kind, gain, advance, smooth) or (
+            model and meta.get("model_sha256") != _archived_sha(root, model))
+        if stale:
+            extra = ["--model", f"archive/{model}.zip"] if model else []
+            _run(root, "studies/online_correction.py", "play", "--base", base, *extra,
+                 "--kind", kind, "--gain", str(gain), "--advance", str(advance), "--smooth",
+                 str(smooth), "--seeds", "0-999", "--prefix", prefix, "--force")
+
+
 def _run(root: Path, *argv: str) -> None:
     print("run: uv run " + " ".join(argv), flush=True)
     subprocess.run([sys.executable, *argv], cwd=root, check=True)
@@ -197,6 +231,7 @@ def prepare(root: Path) -> None:
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{m}.zip", "--force")
+    _online_sets(root)
     # the oracles: 20 replays per trajectory, started from a model's lead, seeds 0-199
     for prefix, model in ORACLES.items():
         want = _archived_sha(root, model)

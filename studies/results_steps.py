@@ -548,6 +548,22 @@ def table_steps() -> list[Step]:
              f"{a}seeds/deploy_kalman_5m_s2.zip"]
     steps.append(_deploy(split, "results/studies/deploy_nominal_5m/noise_split",
                          ("noise1", "targetnoise1", "noise2", "targetnoise2")))
+    # online corrections on top of a lead (issue 37, "a lead of another kind"): the lap-to-lap
+    # correction on the headline and on the analytic lead (both know each path's lap time),
+    # and on each of the headline study's five seeds
+    on = "results/studies/online"
+    steps += [_pair(HEADLINE, "headline_repetitive", f"{on}/headline_repetitive_vs_headline.md"),
+              _oracle_table(f"{on}/headline_repetitive_with_oracle.md", "headline_repetitive",
+                            "ilc"),
+              _pair("analytic", "analytic_repetitive", f"{on}/analytic_repetitive_vs_analytic.md"),
+              _pair("analytic_repetitive", "headline_repetitive",
+                    f"{on}/headline_repetitive_vs_analytic_repetitive.md")]
+    kept = [f"kept_s{k}" for k in range(1, 6)]
+    steps.append(Step((f"{on}/kept_repetitive.md",),
+                      ("studies/online_correction.py", "summary", "--pairs",
+                       *(f"{p}:{p}_repetitive" for p in kept)),
+                      tuple(f"rollouts/{p}{x}" for p in kept for x in ("", "_repetitive")),
+                      stdout=True, section="all"))
     # issue 36's first table, with the headline of its day
     deploy_models = [f"{a}{PREVIOUS_HEADLINE}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip",
                      f"{a}{DEPLOY}.zip"]

@@ -29,8 +29,9 @@ class StubTask:
     def play(self, act) -> np.ndarray:
         """The lead (m) act adds at each step, (steps, n, 3)."""
         out = []
-        for self.k in range(len(self.errors)):
-            self.core.time = np.full(len(self.trajs), self.k * DT)
+        for k in range(len(self.errors)):
+            self.k = k
+            self.core.time = np.full(len(self.trajs), k * DT)
             out.append(act(np.zeros((len(self.trajs), 1)), self) * MAX_LEAD)
         return np.array(out)
 
