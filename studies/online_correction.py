@@ -169,11 +169,11 @@ def summary(args: Args) -> None:
     if not seeds:
         raise UserError("the pairs' rollout sets share no trajectory seed")
     print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}`: "
-          f"{seed_set_title(seeds, 'trajectories')}; cm, settled from 0.5 s; the corrected "
-          "minus the plain set.\n")
+          f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from 0.5 s; the "
+          "corrected minus the plain set.\n")
     print("| pair | mean error, plain | with the correction | settled, plain | with the "
           "correction | settled diff |\n|---|---|---|---|---|---|")
-    arrays = {k: ([], []) for k in ("mean_err", "settled_err")}
+    arrays = {k: ([], []) for k in ("mean_err", "settled_err", "jerk_rms")}
     for pair, (a, b) in zip(args.pairs, sets, strict=True):
         for k, (plain, corrected) in arrays.items():
             plain.append([a[s][k] for s in seeds])
@@ -184,7 +184,8 @@ def summary(args: Args) -> None:
               f"{m['settled_err'][1] - m['settled_err'][0]:+.3f} |")
     print()
     rng = np.random.default_rng(0)
-    for k, label in (("mean_err", "mean error"), ("settled_err", "settled error")):
+    for k, label in (("mean_err", "mean error (cm)"), ("settled_err", "settled error (cm)"),
+                     ("jerk_rms", "tip jerk RMS (m/s^3)")):
         plain, corrected = (np.array(x) for x in arrays[k])
         per_seed = [x.mean(axis=1) for x in (plain, corrected)]
         ci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, rng)
