@@ -140,13 +140,18 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
     return leads, history
 
 
-def oracle_meta(ilc: ILCConfig, start_sha256: str | None = None) -> dict:
+def oracle_meta(ilc: ILCConfig, start_sha256: str | None = None,
+                start_online: dict | None = None) -> dict:
     """What a rollout of the oracle records about it (rollout meta "ilc"): its settings and the
     lead it started from, ``start_model_sha256`` (the starting model's SHA-256; None when it
-    started from the analytic or zero lead). The oracle belongs to that start: metrics.py
-    refuses to pair it with another model, and a results script compares this hash with the
-    model's sidecar to rebuild a stale oracle."""
-    return {"oracle": True, **asdict(ilc), "start_model_sha256": start_sha256}
+    started from the analytic or zero lead) and ``start_online`` (the online correction the
+    start had on top, panda_lead/online.py; None: none). The oracle belongs to that start:
+    metrics.py refuses to pair it with another model or the same model corrected otherwise, and
+    a results script compares the hash with the model's sidecar to rebuild a stale oracle."""
+    meta = {"oracle": True, **asdict(ilc), "start_model_sha256": start_sha256}
+    if start_online is not None:  # (older oracles' files have no such key: none)
+        meta["start_online"] = start_online
+    return meta
 
 
 def oracle_start(meta: dict) -> tuple[str, str | None]:
@@ -175,3 +180,11 @@ def check_oracle_start(oracle_meta_: dict, compared: dict[str, dict], oracle_nam
         name, theirs = next(iter(models.items()))
         raise UserError(f"{oracle_name} started from the model {sha[:12]}, not from {name}'s "
                         f"({theirs[:12]}): rebuild the oracle from that model")
+    online = (oracle_meta_.get("ilc") or {}).get("start_online")
+    mine = {name: compared[name].get("online") for name, m in models.items() if m == sha}
+    if mine and online not in mine.values():
+        name, theirs = next(iter(mine.items()))
+        said = lambda c: f"the {c['kind']} correction" if c else "no online correction"  # noqa: E731
+        raise UserError(f"{oracle_name} started from that model with {said(online)}, {name} "
+                        f"runs it with {said(theirs)}: rebuild the oracle from that controller "
+                        "(studies/online_correction.py play --oracle)")

@@ -4,6 +4,8 @@ then play the tuned one on any seeds as a rollout set that metrics.py compares l
     uv run studies/online_correction.py tune > results/studies/online/tuning.md
     uv run studies/online_correction.py play --kind repetitive --gain 0.3 --advance 15 \\
         --seeds 0-999 --prefix headline_repetitive
+    uv run studies/online_correction.py play --kind repetitive --gain 0.3 --advance 15 \\
+        --seeds 0-199 --prefix ilc_headline_repetitive --oracle   # its ceiling
     uv run studies/online_correction.py summary --pairs kept_s1:kept_s1_repetitive ...
 
 ``tune`` plays every setting of both kinds on the 50 tuning seeds (5 s episodes, one batch
@@ -63,6 +65,9 @@ class Args:
     """play: the rollout set's name under rollouts/."""
     force: bool = False
     """play: replace a set played by another controller."""
+    oracle: bool = False
+    """play: the ILC oracle restarted from the lead with the correction (its ceiling, what
+    metrics.py --oracle reads for the share of the gain), instead of the lead itself."""
     pairs: list[str] = field(default_factory=list)
     """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
     bootstrap: int = 10000
@@ -78,6 +83,23 @@ def _base(args: Args):
     if args.base == "analytic":
         return harness.build("analytic", steps)
     return harness.build("policy", steps, model=args.model)
+
+
+def _oracle(args: Args, correction):
+    """The ILC oracle (harness's, its default settings) whose first replay is the lead with the
+    correction; its files record that start (model hash and correction: ilc.oracle_meta)."""
+    from dataclasses import replace
+
+    from panda_lead import harness
+    from panda_lead.core import control_dt
+    from panda_lead.ilc import ILCConfig, oracle_meta
+    from panda_lead.online import wrap
+
+    ilc = ILCConfig(init="policy" if args.base == "policy" else "analytic")
+    ctrl = harness.build("ilc", int(round(5.0 / control_dt())), model=args.model, ilc=ilc)
+    meta = {**ctrl.meta, "ilc": oracle_meta(ilc, ctrl.meta["ilc"]["start_model_sha256"],
+                                            correction.meta())}
+    return replace(ctrl, meta=meta, init_act=wrap(ctrl.init_act, correction))
 
 
 def _errors(config, act, seeds) -> tuple[float, float]:
@@ -139,12 +161,15 @@ def play(args: Args) -> None:
         correction = OnlineCorrection(args.kind, args.gain, args.advance, args.smooth)
     except ValueError as e:
         raise UserError(str(e)) from None
-    ctrl = _base(args)
-    meta = {**ctrl.meta, "online": correction.meta()}
-    if correction.knows_path:
-        meta["knows_path"] = True
-    ctrl = harness.Controller(ctrl.name, ctrl.config, meta, wrap(ctrl.act, correction),
-                              policy=ctrl.policy, dropped=ctrl.dropped)
+    if args.oracle:
+        ctrl = _oracle(args, correction)
+    else:
+        ctrl = _base(args)
+        meta = {**ctrl.meta, "online": correction.meta()}
+        if correction.knows_path:
+            meta["knows_path"] = True
+        ctrl = harness.Controller(ctrl.name, ctrl.config, meta, wrap(ctrl.act, correction),
+                                  policy=ctrl.policy, dropped=ctrl.dropped)
     n = harness.write_set(ctrl, seeds, None, ROLLOUT_DIR, args.prefix, force=args.force)
     print(f"wrote {n} rollouts to {ROLLOUT_DIR / args.prefix}/")
 

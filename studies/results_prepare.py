@@ -162,6 +162,18 @@ def _online_sets(root: Path) -> None:
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", "--force")
+    # the oracle restarted from the headline with the correction (its own ceiling), seeds 0-199
+    files = sorted((root / "rollouts" / "ilc_headline_repetitive").glob("seed_*.npz"))
+    ilc = (read_meta(files[0]).get("ilc") or {}) if files else {}
+    start = ilc.get("start_online") or {}
+    if (ilc.get("start_model_sha256") != _archived_sha(root, HEADLINE)
+            or tuple(start.get(k) for k in ("kind", "gain", "advance", "smooth"))
+            != ONLINE_REPETITIVE):
+        kind, gain, advance, smooth = ONLINE_REPETITIVE
+        _run(root, "studies/online_correction.py", "play", "--model", f"archive/{HEADLINE}.zip",
+             "--kind", kind, "--gain", str(gain), "--advance", str(advance), "--smooth",
+             str(smooth), "--seeds", "0-199", "--prefix", "ilc_headline_repetitive",
+             "--oracle", "--force")
     for prefix, (base, model, kind, gain, advance, smooth) in ONLINE.items():
         files = sorted((root / "rollouts" / prefix).glob("seed_*.npz"))
         meta = read_meta(files[0]) if files else {}

@@ -553,8 +553,9 @@ def table_steps() -> list[Step]:
     # and on each of the headline study's five seeds
     on = "results/studies/online"
     steps += [_pair(HEADLINE, "headline_repetitive", f"{on}/headline_repetitive_vs_headline.md"),
+              # against its own oracle: the ILC restarted from the headline with the correction
               _oracle_table(f"{on}/headline_repetitive_with_oracle.md", "headline_repetitive",
-                            "ilc"),
+                            "ilc_headline_repetitive"),
               _pair("analytic", "analytic_repetitive", f"{on}/analytic_repetitive_vs_analytic.md"),
               _pair("analytic_repetitive", "headline_repetitive",
                     f"{on}/headline_repetitive_vs_analytic_repetitive.md")]

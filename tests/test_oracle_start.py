@@ -87,3 +87,19 @@ def test_the_built_oracle_records_its_starting_models_hash():
     assert oracle_start(ctrl.meta) == ("policy", side["model_sha256"])
     analytic_start = build("ilc", steps=10, ilc=ILCConfig(iterations=0, init="analytic"))
     assert oracle_start(analytic_start.meta) == ("analytic", None)
+
+
+def test_an_oracle_belongs_to_its_starts_online_correction_too():
+    """The same model with a lap-to-lap correction on top (panda_lead/online.py) is another
+    lead: the oracle restarted from the model alone is not its ceiling, nor the other way."""
+    rc = {"kind": "repetitive", "gain": 0.3, "advance": 15, "smooth": 0, "start": 0.5}
+    plain_oracle = {"controller": "ilc", "ilc": oracle_meta(ILCConfig(), SHA_X)}
+    rc_oracle = {"controller": "ilc", "ilc": oracle_meta(ILCConfig(), SHA_X, rc)}
+    corrected = {"controller": "policy", "model_sha256": SHA_X, "online": rc}
+    plain = {"controller": "policy", "model_sha256": SHA_X}
+    with pytest.raises(UserError, match="no online correction.*repetitive correction"):
+        check_oracle_start(plain_oracle, {"A": {"controller": "analytic"}, "B": corrected}, "o")
+    with pytest.raises(UserError, match="repetitive correction.*no online correction"):
+        check_oracle_start(rc_oracle, {"A": {"controller": "analytic"}, "B": plain}, "o")
+    check_oracle_start(rc_oracle, {"A": {"controller": "analytic"}, "B": corrected}, "o")
+    check_oracle_start(plain_oracle, {"A": {"controller": "analytic"}, "B": plain}, "o")
