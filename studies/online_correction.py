@@ -1,7 +1,7 @@
 """Online corrections on top of a lead (panda_lead/online.py): tune them on the tuning seeds,
 then play the tuned one on any seeds as a rollout set that metrics.py compares like any other.
 
-    uv run studies/online_correction.py tune > results/studies/online/tuning.md
+    uv run studies/online_correction.py tune > results/studies/online/tuning_headline.md
     uv run studies/online_correction.py play --kind repetitive --gain 0.3 --advance 15 \\
         --seeds 0-999 --prefix headline_repetitive
     uv run studies/online_correction.py play --kind repetitive --gain 0.3 --advance 15 \\
@@ -81,6 +81,8 @@ def _base(args: Args):
 
     steps = int(round(5.0 / control_dt()))
     if args.base == "analytic":
+        if args.model is not None:
+            raise UserError("--model is for --base policy; the analytic lead has none")
         return harness.build("analytic", steps)
     return harness.build("policy", steps, model=args.model)
 
