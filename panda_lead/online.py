@@ -14,6 +14,8 @@ its lead, learned within the episode from the tip's tracking error e = target - 
   a preview controller.
 
 Both are settings, never trained: studies/online_correction.py tunes them on the tuning seeds.
+They read the true tip and target, so they run only where there is no noise or latency (a
+measured, delayed error would need its own filter and prediction; not built).
 """
 
 from __future__ import annotations
@@ -55,8 +57,12 @@ def wrap(act, correction: OnlineCorrection):
 
     def corrected(obs, task) -> np.ndarray:
         action = np.asarray(act(obs, task), dtype=np.float64)
-        if task.config.action != "lead":
+        cfg = task.config
+        if cfg.action != "lead":
             raise ValueError("an online correction adds to a Cartesian lead: action 'lead'")
+        if any(cfg.obs_noise.values()) or cfg.obs_delay or cfg.action_delay or cfg.target_delay:
+            raise ValueError("an online correction reads the true tip and target: it is built "
+                             "for the world without noise or latency")
         n, dt = len(action), task.dt
         steps = np.rint(np.asarray(task.core.time) / dt).astype(int)  # this step's index
         horizon = task.config.episode_steps + 1

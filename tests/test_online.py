@@ -19,7 +19,8 @@ class StubTask:
 
     def __init__(self, laps, errors):
         self.dt = DT
-        self.config = SimpleNamespace(action="lead", episode_steps=len(errors), max_lead=MAX_LEAD)
+        self.config = SimpleNamespace(action="lead", episode_steps=len(errors), max_lead=MAX_LEAD,
+                                      obs_noise={}, obs_delay=0, action_delay=0, target_delay=0)
         self.trajs = [SimpleNamespace(params={"lap_time": lap}) for lap in laps]
         self.errors, self.k = errors, 0  # errors: (steps, n, 3)
         n = len(laps)
@@ -124,3 +125,14 @@ def test_bad_settings_are_refused():
                 dict(kind="repetitive", gain=0.3, advance=-1)):
         with pytest.raises(ValueError):
             OnlineCorrection(**bad)
+
+
+def test_a_correction_refuses_a_world_with_noise_or_latency():
+    """It reads the true tip and target; under noise or latency that would be a cheat."""
+    for cfg in ({"obs_noise": {"target_pos": 0.01}}, {"obs_delay": 1}, {"target_delay": 1}):
+        task = StubTask([1.0], np.zeros((3, 1, 3)))
+        task.config = SimpleNamespace(action="lead", episode_steps=3, max_lead=MAX_LEAD,
+                                      **{"obs_noise": {}, "obs_delay": 0, "action_delay": 0,
+                                         "target_delay": 0, **cfg})
+        with pytest.raises(ValueError, match="without noise or latency"):
+            task.play(wrap(zero_lead, OnlineCorrection("integral", 1.0)))
