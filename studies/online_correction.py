@@ -120,7 +120,8 @@ def tune(args: Args) -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     lead = ctrl.meta.get("model") or "the analytic lead"
-    print(f"`uv run studies/online_correction.py tune --base {args.base}` at commit {commit}: "
+    given = f" --model {args.model}" if args.model is not None else ""
+    print(f"`uv run studies/online_correction.py tune --base {args.base}{given}` at commit {commit}: "
           f"online corrections on top of {lead}; tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]} "
           f"({len(TUNE_SEEDS)}), 5 s episodes; mean / settled (t >= 0.5 s) tracking error, cm. "
           "The lowest settled error of each kind is its tuned setting.\n")
@@ -145,6 +146,8 @@ def tune(args: Args) -> None:
                   f"{c.gain:g}, {s:.3f} cm against {alone:.3f})")
             continue
         extra = f" --advance {c.advance} --smooth {c.smooth}" if kind == "repetitive" else ""
+        if args.model is not None:
+            extra = f" --model {args.model}{extra}"
         print(f"Tuned {kind}: gain {c.gain:g}{extra} (settled {s:.3f} cm): `uv run "
               f"studies/online_correction.py play --base {args.base} --kind {kind} --gain "
               f"{c.gain:g}{extra} --seeds 0-999 --prefix NAME`")
