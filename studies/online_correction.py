@@ -146,11 +146,9 @@ def tune(args: Args) -> None:
                   f"{c.gain:g}, {s:.3f} cm against {alone:.3f})")
             continue
         extra = f" --advance {c.advance} --smooth {c.smooth}" if kind == "repetitive" else ""
-        if args.model is not None:
-            extra = f" --model {args.model}{extra}"
         print(f"Tuned {kind}: gain {c.gain:g}{extra} (settled {s:.3f} cm): `uv run "
-              f"studies/online_correction.py play --base {args.base} --kind {kind} --gain "
-              f"{c.gain:g}{extra} --seeds 0-999 --prefix NAME`")
+              f"studies/online_correction.py play --base {args.base}{given} --kind {kind} "
+              f"--gain {c.gain:g}{extra} --seeds 0-999 --prefix NAME`")
 
 
 def play(args: Args) -> None:

@@ -144,49 +144,56 @@ ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
 
 
 # online corrections on top of a lead (studies/online_correction.py; settings tuned on the tuning
-# seeds: results/studies/online/tuning_*.md): prefix -> (base, archived model or None, kind,
-# gain, advance, smooth); the plain sets of the headline study's five seeds beside them
+# seeds for each lead: results/studies/online/tuning_*.md): prefix -> (base, archived model or
+# None, kind, gain, advance, smooth); the plain sets of the headline study's five seeds beside
+# them; and the oracles restarted from a corrected lead (prefix -> the corrected set it starts
+# from, test seeds 0-199)
 ONLINE_REPETITIVE = ("repetitive", 0.3, 15, 0)  # tuning_headline.md
 ONLINE_PLAIN = {f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)}
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
+          "hardware_repetitive": ("policy", HARDWARE, "repetitive", 0.5, 10, 3),  # tuning_hardware
           **{f"{p}_repetitive": ("policy", m, *ONLINE_REPETITIVE) for p, m in ONLINE_PLAIN.items()}}
+ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
+                  "ilc_hardware_repetitive": "hardware_repetitive"}
+SETTINGS = ("kind", "gain", "advance", "smooth")
+
+
+def _play_online(root: Path, spec: tuple, seeds: str, prefix: str, *extra: str) -> None:
+    base, model, kind, gain, advance, smooth = spec
+    with_model = ["--model", f"archive/{model}.zip"] if model else []
+    _run(root, "studies/online_correction.py", "play", "--base", base, *with_model, "--kind",
+         kind, "--gain", str(gain), "--advance", str(advance), "--smooth", str(smooth),
+         "--seeds", seeds, "--prefix", prefix, *extra, "--force")
+
+
+def _first_meta(root: Path, prefix: str) -> dict:
+    from panda_lead.rollout import read_meta
+
+    files = sorted((root / "rollouts" / prefix).glob("seed_*.npz"))
+    return read_meta(files[0]) if files else {}
 
 
 def _online_sets(root: Path) -> None:
-    """Each online set (re)played when missing, or played by another model or setting."""
-    from panda_lead.rollout import read_meta
-
+    """Each online set and oracle (re)played when missing, or played by another model or
+    setting than ONLINE says."""
     for prefix, model in ONLINE_PLAIN.items():
         want = _archived_sha(root, model)
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", "--force")
-    # the oracle restarted from the headline with the correction (its own ceiling), seeds 0-199
-    files = sorted((root / "rollouts" / "ilc_headline_repetitive").glob("seed_*.npz"))
-    ilc = (read_meta(files[0]).get("ilc") or {}) if files else {}
-    start = ilc.get("start_online") or {}
-    if (ilc.get("start_model_sha256") != _archived_sha(root, HEADLINE)
-            or tuple(start.get(k) for k in ("kind", "gain", "advance", "smooth"))
-            != ONLINE_REPETITIVE):
-        kind, gain, advance, smooth = ONLINE_REPETITIVE
-        _run(root, "studies/online_correction.py", "play", "--model", f"archive/{HEADLINE}.zip",
-             "--kind", kind, "--gain", str(gain), "--advance", str(advance), "--smooth",
-             str(smooth), "--seeds", "0-199", "--prefix", "ilc_headline_repetitive",
-             "--oracle", "--force")
-    for prefix, (base, model, kind, gain, advance, smooth) in ONLINE.items():
-        files = sorted((root / "rollouts" / prefix).glob("seed_*.npz"))
-        meta = read_meta(files[0]) if files else {}
-        setting = (meta.get("online") or {})
-        current = (setting.get("kind"), setting.get("gain"), setting.get("advance"),
-                   setting.get("smooth"))
-        stale = current != (kind, gain, advance, smooth) or (
-            model and meta.get("model_sha256") != _archived_sha(root, model))
-        if stale:
-            extra = ["--model", f"archive/{model}.zip"] if model else []
-            _run(root, "studies/online_correction.py", "play", "--base", base, *extra,
-                 "--kind", kind, "--gain", str(gain), "--advance", str(advance), "--smooth",
-                 str(smooth), "--seeds", "0-999", "--prefix", prefix, "--force")
+    for prefix, spec in ONLINE.items():
+        meta, model = _first_meta(root, prefix), spec[1]
+        setting = meta.get("online") or {}
+        if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
+                or (model and meta.get("model_sha256") != _archived_sha(root, model))):
+            _play_online(root, spec, "0-999", prefix)
+    for prefix, start in ONLINE_ORACLES.items():
+        spec, ilc = ONLINE[start], _first_meta(root, prefix).get("ilc") or {}
+        setting = ilc.get("start_online") or {}
+        if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
+                or ilc.get("start_model_sha256") != _archived_sha(root, spec[1])):
+            _play_online(root, spec, "0-199", prefix, "--oracle")
 
 
 def _run(root: Path, *argv: str) -> None:

@@ -559,6 +559,11 @@ def table_steps() -> list[Step]:
               _pair("analytic", "analytic_repetitive", f"{on}/analytic_repetitive_vs_analytic.md"),
               _pair("analytic_repetitive", "headline_repetitive",
                     f"{on}/headline_repetitive_vs_analytic_repetitive.md")]
+    # ... and on the hardware model (its own tuning: its arm filter lags), against its own oracle
+    hw = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
+    steps += [_pair(hw, "hardware_repetitive", f"{on}/hardware_repetitive_vs_hardware.md"),
+              _oracle_table(f"{on}/hardware_repetitive_with_oracle.md", "hardware_repetitive",
+                            "ilc_hardware_repetitive")]
     kept = [f"kept_s{k}" for k in range(1, 6)]
     steps.append(Step((f"{on}/kept_repetitive.md",),
                       ("studies/online_correction.py", "summary", "--pairs",
