@@ -149,11 +149,16 @@ ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
 # them; and the oracles restarted from a corrected lead (prefix -> the corrected set it starts
 # from, test seeds 0-199)
 ONLINE_REPETITIVE = ("repetitive", 0.3, 15, 0)  # tuning_headline.md
-ONLINE_PLAIN = {f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)}
+ONLINE_HARDWARE = ("repetitive", 0.5, 10, 3)  # tuning_hardware.md
+LATE100 = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"  # the hardware study
+ONLINE_PLAIN = {**{f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)},
+                **{f"late100_s{k}": f"seeds/{LATE100}_s{k}" for k in range(1, 6)}}
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
-          "hardware_repetitive": ("policy", HARDWARE, "repetitive", 0.5, 10, 3),  # tuning_hardware
-          **{f"{p}_repetitive": ("policy", m, *ONLINE_REPETITIVE) for p, m in ONLINE_PLAIN.items()}}
+          "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),
+          **{f"{p}_repetitive": ("policy", m, *(ONLINE_REPETITIVE if p.startswith("kept")
+                                                else ONLINE_HARDWARE))
+             for p, m in ONLINE_PLAIN.items()}}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")

@@ -564,12 +564,13 @@ def table_steps() -> list[Step]:
     steps += [_pair(hw, "hardware_repetitive", f"{on}/hardware_repetitive_vs_hardware.md"),
               _oracle_table(f"{on}/hardware_repetitive_with_oracle.md", "hardware_repetitive",
                             "ilc_hardware_repetitive")]
-    kept = [f"kept_s{k}" for k in range(1, 6)]
-    steps.append(Step((f"{on}/kept_repetitive.md",),
-                      ("studies/online_correction.py", "summary", "--pairs",
-                       *(f"{p}:{p}_repetitive" for p in kept)),
-                      tuple(f"rollouts/{p}{x}" for p in kept for x in ("", "_repetitive")),
-                      stdout=True, section="all"))
+    for study in ("kept", "late100"):  # the headline's and the hardware model's five seeds
+        seeds = [f"{study}_s{k}" for k in range(1, 6)]
+        steps.append(Step((f"{on}/{study}_repetitive.md",),
+                          ("studies/online_correction.py", "summary", "--pairs",
+                           *(f"{p}:{p}_repetitive" for p in seeds)),
+                          tuple(f"rollouts/{p}{x}" for p in seeds for x in ("", "_repetitive")),
+                          stdout=True, section="all"))
     # issue 36's first table, with the headline of its day
     deploy_models = [f"{a}{PREVIOUS_HEADLINE}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip",
                      f"{a}{DEPLOY}.zip"]
