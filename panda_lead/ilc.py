@@ -184,7 +184,10 @@ def check_oracle_start(oracle_meta_: dict, compared: dict[str, dict], oracle_nam
     mine = {name: compared[name].get("online") for name, m in models.items() if m == sha}
     if mine and online not in mine.values():
         name, theirs = next(iter(mine.items()))
-        said = lambda c: f"the {c['kind']} correction" if c else "no online correction"  # noqa: E731
-        raise UserError(f"{oracle_name} started from that model with {said(online)}, {name} "
-                        f"runs it with {said(theirs)}: rebuild the oracle from that controller "
+        raise UserError(f"{oracle_name} started from that model with {_said(online)}, {name} "
+                        f"runs it with {_said(theirs)}: rebuild the oracle from that controller "
                         "(studies/online_correction.py play --oracle)")
+
+
+def _said(correction: dict | None) -> str:
+    return f"the {correction['kind']} correction" if correction else "no online correction"

@@ -68,9 +68,12 @@ def wrap(act, correction: OnlineCorrection):
         horizon = task.config.episode_steps + 1
         if state.get("n") != n:
             state.update(n=n, c=np.zeros((n, horizon, 3)), e=np.zeros((n, horizon, 3)),
-                         integral=np.zeros((n, 3)))
+                         integral=np.zeros((n, 3)), lap=np.ones(n))
         fresh = steps == 0
         state["c"][fresh], state["e"][fresh], state["integral"][fresh] = 0.0, 0.0, 0.0
+        if correction.kind == "repetitive" and fresh.any():  # a new path: its lap, in steps
+            state["lap"][fresh] = [task.trajs[i].params["lap_time"] / dt
+                                   for i in np.flatnonzero(fresh)]
         pos = task.core.target()[0]
         error = pos - task.core.tip_pos
         rows = np.arange(n)
@@ -80,7 +83,7 @@ def wrap(act, correction: OnlineCorrection):
             state["integral"] += np.where(on, error * dt, 0.0)
             c = correction.gain * state["integral"]
         else:
-            lap = np.array([tr.params["lap_time"] for tr in task.trajs]) / dt  # in steps
+            lap = state["lap"]
             c = np.zeros((n, 3))
             shifts = range(-correction.smooth, correction.smooth + 1)
             for j in shifts:  # Q: the mean over the window

@@ -24,12 +24,15 @@ charges them.
 from __future__ import annotations
 
 import subprocess
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import tyro
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # studies/preview_rivals.py
 
 from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
@@ -104,15 +107,9 @@ def _oracle(args: Args, correction):
     return replace(ctrl, meta=meta, init_act=wrap(ctrl.init_act, correction))
 
 
-def _errors(config, act, seeds) -> tuple[float, float]:
-    from panda_lead.rollout import record_many
-
-    rollouts = record_many(config, act, seeds)
-    settled = [r.error[r.t >= 0.5].mean() for r in rollouts]
-    return 100 * float(np.mean([r.error.mean() for r in rollouts])), 100 * float(np.mean(settled))
-
-
 def tune(args: Args) -> None:
+    from preview_rivals import mean_errors  # the same scoring the preview rivals were tuned by
+
     from panda_lead.online import OnlineCorrection, wrap
     from panda_lead.seeds import TUNE_SEEDS
 
@@ -127,14 +124,14 @@ def tune(args: Args) -> None:
           "The lowest settled error of each kind is its tuned setting.\n")
     print("| correction | gain | advance (steps) | smooth (steps) | mean error | settled |\n"
           "|---|---|---|---|---|---|")
-    m, alone = _errors(ctrl.config, ctrl.act, TUNE_SEEDS)
+    m, alone = mean_errors(ctrl.config, ctrl.act, TUNE_SEEDS)
     print(f"| none (the lead alone) | | | | {m:.3f} | {alone:.3f} |", flush=True)
     grid = [OnlineCorrection("integral", g) for g in args.integral_gains]
     grid += [OnlineCorrection("repetitive", g, a, q) for q in args.smooths
              for g in args.repetitive_gains for a in args.advances]
     best: dict[str, tuple[float, OnlineCorrection]] = {}
     for c in grid:
-        m, s = _errors(ctrl.config, wrap(ctrl.act, c), TUNE_SEEDS)
+        m, s = mean_errors(ctrl.config, wrap(ctrl.act, c), TUNE_SEEDS)
         adv, q = (c.advance, c.smooth) if c.kind == "repetitive" else ("", "")
         print(f"| {c.kind} | {c.gain:g} | {adv} | {q} | {m:.3f} | {s:.3f} |", flush=True)
         if c.kind not in best or s < best[c.kind][0]:

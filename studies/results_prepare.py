@@ -208,14 +208,8 @@ def _run(root: Path, *argv: str) -> None:
 
 def _set_model(root: Path, prefix: str) -> str | None:
     """The model_sha256 a rollout set's first file records (None: no set, or no model)."""
-    files = sorted((root / "rollouts" / prefix).glob("seed_*.npz"))
-    if not files:
-        return None
-    from panda_lead.rollout import read_meta
-
-    meta = read_meta(files[0])
-    ilc = meta.get("ilc") or {}
-    return ilc.get("start_model_sha256") or meta.get("model_sha256")
+    meta = _first_meta(root, prefix)
+    return (meta.get("ilc") or {}).get("start_model_sha256") or meta.get("model_sha256")
 
 
 def _archived_sha(root: Path, name: str) -> str | None:
