@@ -3,6 +3,7 @@
     uv run studies/profile_update.py                  # SB3's PPO against FastPPO, 3 pairs
     uv run studies/profile_update.py --pairs 5 --iterations 6
     uv run studies/profile_update.py --variants fast --cprofile 2   # where a sample's time goes
+    uv run studies/profile_update.py --activations 2000   # tanh's kernel against its neighbours
     python3 studies/profile_update.py --variants fast --cprofile 5 --train-profile gpu  # on a GPU
 
 Times PPO iterations of the repo default (TrainConfig(): 32 batched envs x 128 steps, batch
@@ -60,6 +61,10 @@ class Args:
     """Only a cProfile: this many PPO iterations of the first variant, the functions with the
     most own time and those that cost a sample's wall time (MuJoCo's rollout, the env step,
     the policy's forward, the update), in us per sample."""
+    activations: int = 0
+    """Only the activation micro-benchmark: this many calls per round (5 rounds, median) of
+    torch.tanh, torch.sigmoid, the sigtanh what-if, numpy's tanh and the 64 x 64 matmul beside
+    them, on 1,024 x 64 floats (a minibatch's hidden layer), one torch thread."""
     train_profile: str = "cpu"
     """The machine profile to profile (training/config.py PROFILES): cpu, the 2-core default;
     gpu, the CUDA learner's (device cuda, 256 envs, batch 8,192) with MuJoCo on every core."""
@@ -254,6 +259,35 @@ def update_only(args: Args) -> None:
               f"| {ratio:.2f} |")
 
 
+def activations(args: Args) -> None:
+    """Why tanh leads the update's profile: its kernel against the ops around it."""
+    import numpy as np
+    import torch
+
+    torch.set_num_threads(1)
+    x, w = torch.randn(1024, 64), torch.randn(64, 64)
+    ours = sigmoid_tanh()
+    with torch.no_grad():
+        ops = {"torch.tanh": lambda: torch.tanh(x), "torch.sigmoid": lambda: torch.sigmoid(x),
+               "sigtanh (2 sigmoid(2x) - 1)": lambda: ours(x),
+               "numpy tanh": lambda: np.tanh(x.numpy()), "matmul 1,024 x 64 by 64 x 64": lambda: x @ w}
+        print(f"`uv run studies/profile_update.py {' '.join(sys.argv[1:])}` on {cpu_model_name()}, "
+              f"{time.strftime('%Y-%m-%d')}, torch {torch.__version__}, kernels "
+              f"{torch.backends.cpu.get_cpu_capability()}; us per call on 1,024 x 64 float32, "
+              "median of 5 rounds\n")
+        print("| op | us per call |\n|---|---|")
+        for name, op in ops.items():
+            for _ in range(50):
+                op()
+            rounds = []
+            for _ in range(5):
+                t = time.perf_counter()
+                for _ in range(args.activations):
+                    op()
+                rounds.append((time.perf_counter() - t) / args.activations * 1e6)
+            print(f"| {name} | {statistics.median(rounds):.1f} |")
+
+
 def cpu_model_name() -> str:
     from bench import cpu_model
 
@@ -302,6 +336,8 @@ def main() -> None:
     unknown = [v for v in args.variants if v not in VARIANTS]
     if unknown:
         raise UserError(f"unknown variant {unknown[0]!r}; choose from {', '.join(VARIANTS)}")
+    if args.activations:
+        return activations(args)
     if args.update_only:
         return update_only(args)
     if args.cprofile:

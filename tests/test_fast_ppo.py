@@ -434,3 +434,19 @@ def test_the_profiles_sigmoid_tanh_is_tanh_to_float32_rounding():
     use_sigmoid_tanh(model.policy)
     assert not any(type(layer) is torch.nn.Tanh for net in nets for layer in net)
     assert sum(type(layer).__name__ == "SigmoidTanh" for net in nets for layer in net) == 4
+
+
+def test_the_activation_benchmark_times_each_op(capsys):
+    """profile_update.py --activations: a row per op, each a positive time (performance.md's
+    tanh figures come from it)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
+    from profile_update import Args, activations
+
+    activations(Args(activations=3))
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ")]
+    times = {r.split("|")[1].strip(): float(r.split("|")[2]) for r in rows[1:]}
+    assert {"torch.tanh", "torch.sigmoid", "numpy tanh"} <= set(times)
+    assert all(t > 0 for t in times.values())
