@@ -41,11 +41,13 @@ PATH_FEATURES = ("target_preview", "preview_jerk")
 def knows_path(env) -> bool:
     """Whether a controller on env ``env`` (an EnvConfig, a sidecar's env dict, or observation
     features alone) knows the planned path ahead: it observes a PATH_FEATURES feature, or
-    its env runs the model-based feedforward (EnvConfig.feedforward) under its lead."""
+    its env runs the model-based feedforward (EnvConfig.feedforward) or the lap-to-lap
+    correction (EnvConfig.repetitive_gain, which knows each path's lap time) with its lead."""
     if isinstance(env, dict):
-        features, feedforward = env.get("obs_features"), env.get("feedforward", False)
+        features = env.get("obs_features")
+        feedforward = env.get("feedforward", False) or env.get("repetitive_gain", 0.0)
     elif hasattr(env, "obs_features"):
-        features, feedforward = env.obs_features, env.feedforward
+        features, feedforward = env.obs_features, env.feedforward or env.repetitive_gain
     else:
         features, feedforward = env, False
     return bool(feedforward) or any(f in PATH_FEATURES for f in features or ())
@@ -271,6 +273,16 @@ class EnvConfig:
     (controllers.make_feedforward's settings, tuned on the tuning seeds). With a zero lead
     this is the feedforward rival; a policy on it learns a residual. Needs action "lead"; not
     with target_delay or noisy_ik_target (the plan is known, not measured)."""
+    repetitive_gain: float = field(default=0.0, metadata={"range": (0.0, 2.0)})
+    """The lap-to-lap (repetitive) correction in the loop, added to the policy's lead each
+    control step (panda_lead/online.py, the law studies/online_correction.py plays on top of a
+    trained lead): c(t) = Q[c(t - T) + k e(t - T + advance)] with this gain k, T each path's
+    lap time (so it knows the planned path). A policy trained with it learns the lead that
+    works beside it. Needs action "lead" and the world without noise or latency. 0: none."""
+    repetitive_advance: int = field(default=15, metadata={"range": (0, 50)})
+    """The in-loop repetitive correction's phase lead (control steps; repetitive_gain > 0)."""
+    repetitive_smooth: int = field(default=0, metadata={"range": (0, 20)})
+    """The in-loop repetitive correction's low-pass half-width (control steps)."""
     lead_filter_hz: float = field(default=0.0, metadata={"range": (0.0, 1000.0)})
     """A first-order low-pass on the applied lead, in the loop (cutoff in Hz; 0: none), like
     libfranka's 100 Hz filter on the robot's commands but on the lead alone: the lead moves
@@ -372,6 +384,12 @@ class EnvConfig:
                                  or self.noisy_ik_target):
             raise UserError("feedforward puts the feedforward rival under a Cartesian lead: "
                             "it needs action 'lead', and no target_delay or noisy_ik_target")
+        if self.repetitive_gain and (
+                self.action != "lead" or any(self.obs_noise.values()) or self.obs_delay
+                or self.action_delay or self.target_delay or self.random_delay
+                or self.random_noise or self.noisy_ik_target):
+            raise UserError("repetitive_gain runs the lap-to-lap correction on the true tip and "
+                            "target: it needs action 'lead' and no noise or latency")
         if not 0 <= self.target_delay <= 50:
             raise UserError(f"target_delay must be 0..50 steps, got {self.target_delay}")
         if self.action not in ACTIONS:

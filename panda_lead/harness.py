@@ -59,6 +59,7 @@ class Controller:
     act: object = None  # act(obs, task) -> actions; None for the oracle until it has learnt
     ilc: ILCConfig | None = None
     init_act: object = None  # the oracle's first replay
+    init_config: EnvConfig | None = None  # the env of that first replay (default: config)
     policy: object = None  # the loaded policy, for callers that need it
     dropped: list[str] = field(default_factory=list)
 
@@ -67,8 +68,8 @@ class Controller:
         the lead sequences it learns on exactly these trajectories."""
         if self.ilc is None:
             return self.act
-        leads, _ = learn_leads(self.config, seeds, shapes, self.ilc, self.init_act,
-                               on_iteration=on_iteration)
+        leads, _ = learn_leads(self.init_config or self.config, seeds, shapes, self.ilc,
+                               self.init_act, on_iteration=on_iteration)
         return replay_controller(leads, seeds, self.config.max_lead)
 
 
@@ -110,6 +111,8 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
     config, dropped = evaluation_config(env_config, overrides, steps)
     if config.feedforward and not needs_model:  # a baseline on a residual model's env plays
         config = config.replace(feedforward=False)  # without it: else it is that rival
+    if env_config.repetitive_gain and not needs_model:  # ... and without the model's in-loop
+        config = config.replace(repetitive_gain=0.0)  # correction (online_correction.py adds it)
     if name == "policy":
         act = controllers.make_policy(policy, deterministic=not stochastic)
         return Controller(name, config, meta, act, policy=policy, dropped=dropped)
@@ -136,7 +139,10 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
               "zero": controllers.classical}
     init = (controllers.make_policy(policy) if ilc.init == "policy" else starts[ilc.init])
     meta["ilc"] = oracle_meta(ilc, meta.get("model_sha256") if ilc.init == "policy" else None)
-    return Controller(name, config, meta, ilc=ilc, init_act=init, policy=policy, dropped=dropped)
+    # A model trained with the lap-to-lap correction in the loop starts the oracle as it runs,
+    # correction and all; the corrected leads it records are then replayed without it
+    return Controller(name, config.replace(repetitive_gain=0.0), meta, ilc=ilc, init_act=init,
+                      init_config=config, policy=policy, dropped=dropped)
 
 
 def _check_overrides(model_env: EnvConfig, overrides: dict, name: str) -> None:

@@ -110,7 +110,9 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
                 on_iteration=None) -> tuple[np.ndarray, list[float]]:
     """Run the oracle on every seed at once -> (best lead sequences (N, T, 3) in metres, the
     mean error (cm) over all seeds after each replay, the first replay included).
-    ``init_act`` is the first replay's controller; ``on_iteration(j, mean_cm)`` reports."""
+    ``init_act`` is the first replay's controller; ``on_iteration(j, mean_cm)`` reports.
+    Under ``config.repetitive_gain`` (a start with the lap-to-lap correction in the loop) the
+    first replay runs with it and records the corrected leads; the replays run without it."""
     if config.action != "lead":
         raise UserError("the ILC oracle corrects a Cartesian lead: it needs action 'lead'")
     seeds = [int(s) for s in seeds]
@@ -122,12 +124,13 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
     if on_iteration:
         on_iteration(0, history[-1])
     steps = leads.shape[1]
+    replay_config = config.replace(repetitive_gain=0.0) if config.repetitive_gain else config
     ahead = np.minimum(np.arange(steps) + ilc.shift, steps - 1)
     gain = np.full((len(seeds), 1, 1), ilc.gain)
     for j in range(1, ilc.iterations + 1):
         trial = np.clip(leads + gain * smooth(errors, ilc.taps)[:, ahead], -bound, bound)
-        _, played_errors, err = _play(config, replay_controller(trial, seeds, bound), seeds,
-                                      shapes, nthread)
+        _, played_errors, err = _play(replay_config, replay_controller(trial, seeds, bound),
+                                      seeds, shapes, nthread)
         better = err < best_err  # keep only improvements, trajectory by trajectory
         leads[better] = trial[better]
         best_err[better] = err[better]

@@ -50,20 +50,22 @@ class OnlineCorrection:
         return asdict(self)
 
 
-def wrap(act, correction: OnlineCorrection):
-    """``act`` with ``correction`` added to its lead (clipped to the lead's bound). The state
-    is per episode slot, cleared when a slot's episode starts (its time is 0)."""
-    state: dict = {}
+class Corrector:
+    """One correction's state over a batch of episode slots: ``corrector(task)`` is the
+    correction (m, (N, 3)) for the task's present control step, learned from the tip's error
+    e = target - tip at this step and the steps before. The state is per slot, cleared when a
+    slot's episode starts (its time is 0). The one law both a played lead (``wrap``) and the
+    env (EnvConfig.repetitive_gain, a policy trained with it in the loop) run."""
 
-    def corrected(obs, task) -> np.ndarray:
-        action = np.asarray(act(obs, task), dtype=np.float64)
-        cfg = task.config
-        if cfg.action != "lead":
-            raise ValueError("an online correction adds to a Cartesian lead: action 'lead'")
-        if any(cfg.obs_noise.values()) or cfg.obs_delay or cfg.action_delay or cfg.target_delay:
-            raise ValueError("an online correction reads the true tip and target: it is built "
-                             "for the world without noise or latency")
-        n, dt = len(action), task.dt
+    def __init__(self, correction: OnlineCorrection):
+        self.correction = correction
+        self.state: dict = {}
+
+    def __call__(self, task) -> np.ndarray:
+        correction, state = self.correction, self.state
+        pos = task.core.target()[0]
+        error = pos - task.core.tip_pos
+        n, dt = len(error), task.dt
         steps = np.rint(np.asarray(task.core.time) / dt).astype(int)  # this step's index
         horizon = task.config.episode_steps + 1
         if state.get("n") != n:
@@ -74,8 +76,6 @@ def wrap(act, correction: OnlineCorrection):
         if correction.kind == "repetitive" and fresh.any():  # a new path: its lap, in steps
             state["lap"][fresh] = [task.trajs[i].params["lap_time"] / dt
                                    for i in np.flatnonzero(fresh)]
-        pos = task.core.target()[0]
-        error = pos - task.core.tip_pos
         rows = np.arange(n)
         state["e"][rows, steps] = error
         if correction.kind == "integral":
@@ -95,8 +95,37 @@ def wrap(act, correction: OnlineCorrection):
                     learn[:, None], correction.gain * e_then, 0.0)
             c /= len(shifts)
         state["c"][rows, steps] = c
-        max_lead = task.config.max_lead
-        return np.clip(action + c / max_lead, -1.0, 1.0).astype(np.float32)
+        return c
+
+
+def corrected_action(action: np.ndarray, c: np.ndarray, max_lead: float) -> np.ndarray:
+    """The action (a lead in units of ``max_lead``) with the correction ``c`` (m) added,
+    clipped to the lead's bound, as float32 as a policy's actions are (so that the law in the
+    env and the law played on a lead are the same numbers, bit for bit)."""
+    return np.clip(action + c / max_lead, -1.0, 1.0).astype(np.float32)
+
+
+def check_world(cfg) -> None:
+    """Refuse an env an online correction cannot run in (it reads the true tip and target)."""
+    if cfg.action != "lead":
+        raise ValueError("an online correction adds to a Cartesian lead: action 'lead'")
+    if any(cfg.obs_noise.values()) or cfg.obs_delay or cfg.action_delay or cfg.target_delay:
+        raise ValueError("an online correction reads the true tip and target: it is built "
+                         "for the world without noise or latency")
+
+
+def wrap(act, correction: OnlineCorrection):
+    """``act`` with ``correction`` added to its lead (clipped to the lead's bound)."""
+    corrector = Corrector(correction)
+
+    def corrected(obs, task) -> np.ndarray:
+        action = np.asarray(act(obs, task), dtype=np.float64)
+        check_world(task.config)
+        if task.config.repetitive_gain:
+            raise ValueError("this env already runs a repetitive correction in the loop "
+                             "(EnvConfig.repetitive_gain): a second one would add to it")
+        c = corrector(task)
+        return corrected_action(action, c, task.config.max_lead)
 
     return corrected
 

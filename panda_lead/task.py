@@ -132,6 +132,14 @@ class LeadTask:
             self._ff_settings = (controllers.FEEDFORWARD_TAU / self.dt,
                                  controllers.FEEDFORWARD_TAU_IK / self.dt,
                                  controllers.FEEDFORWARD_GAIN)
+        # The lap-to-lap correction in the loop (EnvConfig.repetitive_gain): online.py's law,
+        # the one a trained lead is played with
+        self._corrector = None
+        if c.repetitive_gain:
+            from . import online
+
+            self._corrector = online.Corrector(online.OnlineCorrection(
+                "repetitive", c.repetitive_gain, c.repetitive_advance, c.repetitive_smooth))
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
         # (noisy_lead_filter_hz: the slots whose episode is noisy, set at each reset)
         hz = c.lead_filter_hz or (c.noisy_lead_filter_hz if any(c.obs_noise.values()) else 0)
@@ -492,6 +500,11 @@ class LeadTask:
         else:
             shift = None
         if kind == "lead":
+            if self._corrector is not None:
+                from .online import corrected_action
+
+                applied = corrected_action(applied, self._corrector(self),
+                                           self.config.max_lead).astype(np.float64)
             if self._lead_alpha is None:
                 self.lead = applied * self.config.max_lead
             else:  # a new array: info["lead"] of the last step is not written over

@@ -20,7 +20,8 @@ class StubTask:
     def __init__(self, laps, errors):
         self.dt = DT
         self.config = SimpleNamespace(action="lead", episode_steps=len(errors), max_lead=MAX_LEAD,
-                                      obs_noise={}, obs_delay=0, action_delay=0, target_delay=0)
+                                      obs_noise={}, obs_delay=0, action_delay=0, target_delay=0,
+                                      repetitive_gain=0.0)
         self.trajs = [SimpleNamespace(params={"lap_time": lap}) for lap in laps]
         self.errors, self.k = errors, 0  # errors: (steps, n, 3)
         n = len(laps)
@@ -136,3 +137,56 @@ def test_a_correction_refuses_a_world_with_noise_or_latency():
                                          "target_delay": 0, **cfg})
         with pytest.raises(ValueError, match="without noise or latency"):
             task.play(wrap(zero_lead, OnlineCorrection("integral", 1.0)))
+
+
+def test_the_env_runs_the_same_law_as_a_played_correction_bit_for_bit():
+    """EnvConfig.repetitive_gain (a policy trained with the correction in the loop) runs
+    online.py's law, the one studies/online_correction.py plays on top of a trained lead:
+    the same lead in either house gives the same arm, bit for bit."""
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig, knows_path
+    from panda_lead.rollout import record_many
+
+    act, seeds = controllers.make_analytic(), [800_000, 800_001, 800_002]
+    shapes = ["circle", "fig8", "fly"]
+    in_loop = EnvConfig(episode_steps=500, repetitive_gain=0.3, repetitive_advance=15,
+                        repetitive_smooth=2)
+    played = record_many(EnvConfig(episode_steps=500), wrap(act, OnlineCorrection(
+        "repetitive", 0.3, 15, 2)), seeds, shapes=shapes)
+    looped = record_many(in_loop, act, seeds, shapes=shapes)
+    alone = record_many(EnvConfig(episode_steps=500), act, seeds, shapes=shapes)
+    for a, b in zip(played, looped, strict=True):
+        np.testing.assert_array_equal(a.ee_pos, b.ee_pos)
+    for a, c in zip(played[:2], alone[:2], strict=True):  # the closed loops: it acted there
+        assert not np.array_equal(a.ee_pos, c.ee_pos)
+    assert knows_path(in_loop) and knows_path(in_loop.to_dict())  # labelled, never causal
+    with pytest.raises(ValueError, match="already runs"):  # never two corrections at once
+        record_many(in_loop, wrap(act, OnlineCorrection("repetitive", 0.3, 15)), seeds[:1])
+
+
+def test_the_in_loop_correction_refuses_a_world_with_noise_or_latency():
+    from panda_lead.config import EnvConfig
+    from panda_lead.errors import UserError
+
+    for bad in ({"obs_delay": 1}, {"target_delay": 2}, {"action": "joint"},
+                {"obs_noise": {"target_pos": 0.01}}, {"random_noise": True}):
+        with pytest.raises(UserError, match="repetitive_gain"):
+            EnvConfig(repetitive_gain=0.3, **bad)
+
+
+def test_the_oracle_starts_from_the_in_loop_correction_as_from_the_played_one():
+    """The ILC oracle restarted from a lead with the correction in the loop records the
+    corrected leads once and replays them without it (else the correction would add twice):
+    the same oracle as the one started from the same correction played on top, bit for bit."""
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig
+    from panda_lead.ilc import ILCConfig, learn_leads
+
+    act, seeds, ilc = controllers.make_analytic(), [800_000, 800_001], ILCConfig(iterations=2)
+    plain = EnvConfig(episode_steps=300)
+    looped = plain.replace(repetitive_gain=0.3, repetitive_advance=15)
+    a, history_a = learn_leads(looped, seeds, None, ilc, act)
+    b, history_b = learn_leads(plain, seeds, None, ilc,
+                               wrap(act, OnlineCorrection("repetitive", 0.3, 15)))
+    np.testing.assert_array_equal(a, b)
+    assert history_a == history_b and history_a[-1] < history_a[0]

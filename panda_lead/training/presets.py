@@ -139,6 +139,14 @@ PRESETS.update([
     _preset("v5_err_decay", "v5_err with the learning rate decayed linearly to 0 (the climb's "
             "two changes that each helped, together)",
             env=dict(obs_features=OBS_15 + ("tip_error",)), lr_schedule="linear"),
+    # The lap-to-lap correction in the loop while it learns (issue 37, "a lead of another
+    # kind"): played on top of the trained headline study it cut the settled error 0.995 ->
+    # 0.894 cm; does a lead trained beside it (co-adapted) leave it more to do? The headline's
+    # tuned setting (results/studies/online/tuning_headline.md); knows the planned path.
+    _preset("v5_err_decay_repetitive", "v5_err_decay trained with the lap-to-lap correction "
+            "in the loop (gain 0.3, advance 15 steps; knows the planned path)",
+            env=dict(obs_features=OBS_15 + ("tip_error",), repetitive_gain=0.3,
+                     repetitive_advance=15, repetitive_smooth=0), lr_schedule="linear"),
     # + the policy's own last 6 actions (recent_actions): in the deployment world they bought
     # 0.07 cm without delay (issue 36); does the headline's world take the same memory?
     _preset("v5_err_decay_actions", "v5_err_decay + the policy's own last 6 actions observed "
