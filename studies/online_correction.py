@@ -23,6 +23,7 @@ charges them.
 
 from __future__ import annotations
 
+import shlex
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -75,6 +76,9 @@ class Args:
     """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
     bootstrap: int = 10000
     """summary: resamples of the two-level bootstrap."""
+    names: tuple[str, str] = ("plain", "with the correction")
+    """summary: what the two sides of each pair are, for the table (e.g. "added after
+    training" "trained with it")."""
 
 
 def _base(args: Args):
@@ -189,15 +193,20 @@ def summary(args: Args) -> None:
 
     if not args.pairs or any(p.count(":") != 1 for p in args.pairs):
         raise UserError("summary needs --pairs PLAIN:CORRECTED ... (rollout-set prefixes)")
+    if any(not n.strip() for n in args.names):
+        raise UserError("summary --names needs two non-empty names")
     sets = [tuple(_set_metrics(x) for x in p.split(":")) for p in args.pairs]
     seeds = sorted(set.intersection(*(set(a) & set(b) for a, b in sets)))
     if not seeds:
         raise UserError("the pairs' rollout sets share no trajectory seed")
-    print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}`: "
-          f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from 0.5 s; the "
-          "corrected minus the plain set.\n")
-    print("| pair | mean error, plain | with the correction | settled, plain | with the "
-          "correction | settled diff |\n|---|---|---|---|---|---|")
+    a_name, b_name = args.names
+    named = "" if args.names == Args.names else " --names " + shlex.join(args.names)
+    print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}{named}`: "
+          f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from 0.5 s; "
+          + ("the corrected minus the plain set" if not named else f"{b_name} minus {a_name}")
+          + ".\n")
+    print(f"| pair | mean error, {a_name} | {b_name} | settled, {a_name} | {b_name} | "
+          "settled diff |\n|---|---|---|---|---|---|")
     arrays = {k: ([], []) for k in ("mean_err", "settled_err", "jerk_rms")}
     for pair, (a, b) in zip(args.pairs, sets, strict=True):
         for k, (plain, corrected) in arrays.items():
@@ -215,8 +224,8 @@ def summary(args: Args) -> None:
         per_seed = [x.mean(axis=1) for x in (plain, corrected)]
         ci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, rng)
         diff = corrected.mean() - plain.mean()
-        print(f"- {label}: plain {per_seed[0].mean():.3f} +- {per_seed[0].std(ddof=1):.3f}, with "
-              f"the correction {per_seed[1].mean():.3f} +- {per_seed[1].std(ddof=1):.3f} (mean "
+        print(f"- {label}: {a_name} {per_seed[0].mean():.3f} +- {per_seed[0].std(ddof=1):.3f}, "
+              f"{b_name} {per_seed[1].mean():.3f} +- {per_seed[1].std(ddof=1):.3f} (mean "
               f"+- std over the {len(sets)} seeds); diff {diff:+.3f} [{ci[0]:+.3f}, "
               f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}")
 

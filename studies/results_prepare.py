@@ -46,6 +46,9 @@ PILOTS = ("deploy_large_batch_curv3_continued_5m", "deploy_large_batch_curv30_co
 CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m",
              # ... and again with a gentle restart (their own exploration, lr 3e-4)
              "v5_err_decay_finetuned_5m", "v5_err_decay_preview_finetuned_5m")
+# the headline's preset trained with the lap-to-lap correction in the loop (issue 37, "a lead of
+# another kind" co-adapted: EnvConfig.repetitive_gain; knows the planned path)
+LOOPED = "v5_err_decay_repetitive_5m"
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
@@ -54,7 +57,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
-              "v5_err_decay_actions_5m",
+              "v5_err_decay_actions_5m", LOOPED,
               *LARGE_BATCH, *CONTINUED, *PILOTS]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
@@ -112,6 +115,7 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
               ["deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
                                     ["v5_err_decay_preview_continued_5m"]),
+          LOOPED: (LOOPED, [LOOPED]),
           "preview_finetuned_10m": ("v5_err_decay_preview_finetuned_5m",
                                     ["v5_err_decay_preview_finetuned_5m",
                                      "v5_err_decay_preview_finetuned_5m_rest"])}
@@ -125,6 +129,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
         "v5_err_decay_kept": "v5_err_decay_kept", "v5_err_decay_actions_5m": "v5_err_decay_actions_5m",
+        LOOPED: LOOPED,
         **{s: s for s in (*LARGE_BATCH, *CONTINUED, *PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
@@ -133,14 +138,15 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
 HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
-               "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE]
+               "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE, LOOPED]
 # single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
 # device pilots on the deployment world's share of nominal episodes (docs/deploy.md)
 SEED_POLICY_SETS = SHARE_LADDER
 # the ILC oracle's rollout sets (test seeds 0-199): prefix -> the archived model it starts from
 ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
            "ilc_preview_continued": "preview_continued_10m",
-           "ilc_preview_finetuned": "preview_finetuned_10m", "ilc_hardware": HARDWARE}
+           "ilc_preview_finetuned": "preview_finetuned_10m", "ilc_hardware": HARDWARE,
+           "ilc_looped": LOOPED}
 
 
 # online corrections on top of a lead (studies/online_correction.py; settings tuned on the tuning
@@ -153,6 +159,9 @@ ONLINE_HARDWARE = ("repetitive", 0.5, 10, 3)  # tuning_hardware.md
 LATE100 = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"  # the hardware study
 ONLINE_PLAIN = {**{f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)},
                 **{f"late100_s{k}": f"seeds/{LATE100}_s{k}" for k in range(1, 6)}}
+# ... and the five seeds trained with the correction in the loop (their env runs it: played as
+# they are, nothing added on top)
+LOOPED_SEEDS = {f"looped_s{k}": f"seeds/{LOOPED}_s{k}" for k in range(1, 6)}
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
           "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),
@@ -182,7 +191,7 @@ def _first_meta(root: Path, prefix: str) -> dict:
 def _online_sets(root: Path) -> None:
     """Each online set and oracle (re)played when missing, or played by another model or
     setting than ONLINE says."""
-    for prefix, model in ONLINE_PLAIN.items():
+    for prefix, model in {**ONLINE_PLAIN, **LOOPED_SEEDS}.items():
         want = _archived_sha(root, model)
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",

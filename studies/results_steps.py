@@ -571,6 +571,21 @@ def table_steps() -> list[Step]:
                            *(f"{p}:{p}_repetitive" for p in seeds)),
                           tuple(f"rollouts/{p}{x}" for p in seeds for x in ("", "_repetitive")),
                           stdout=True, section="all"))
+    # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
+    # seed's plain model with the correction added after training, and against its oracle
+    looped = "v5_err_decay_repetitive_5m"
+    pairs = {"looped_vs_added": ("kept_s{k}_repetitive", "looped_s{k}", "added after training",
+                                 "trained with it"),
+             "looped_vs_plain": ("kept_s{k}", "looped_s{k}", "plain", "trained with it")}
+    for name, (a, b, a_name, b_name) in pairs.items():
+        sets = [(a.format(k=k), b.format(k=k)) for k in range(1, 6)]
+        steps.append(Step((f"{on}/{name}.md",),
+                          ("studies/online_correction.py", "summary", "--pairs",
+                           *(f"{x}:{y}" for x, y in sets), "--names", a_name, b_name),
+                          tuple(f"rollouts/{x}" for pair in sets for x in pair),
+                          stdout=True, section="all"))
+    steps += [_pair("headline_repetitive", looped, f"{on}/looped_vs_headline_repetitive.md"),
+              _oracle_table(f"{on}/looped_with_oracle.md", looped, "ilc_looped")]
     # issue 36's first table, with the headline of its day
     deploy_models = [f"{a}{PREVIOUS_HEADLINE}.zip", f"{a}delayed_5m.zip", f"{a}{S}.zip",
                      f"{a}{DEPLOY}.zip"]

@@ -292,6 +292,8 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
     ("studies/online_correction.py", ["play", "--seeds", "0-9"], ["play needs --prefix"]),
     ("studies/online_correction.py", ["play", "--prefix", "x", "--gain", "-1"],
      ["must be finite and >= 0"]),
+    ("studies/online_correction.py", ["summary", "--pairs", "a:b", "--names", " ", "x"],
+     ["--names needs two non-empty names"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the

@@ -225,6 +225,9 @@ SINGLE_CONFIGS = {
                               obs_noise={"target_pos": 0.01, "ee_pos": 0.005}),
     # the feedforward rival under the lead, the path ahead observed
     "feedforward": dict(feedforward=True, obs_features=("tip_error", "target_preview")),
+    # the lap-to-lap correction in the loop (it learns from the tip's error lap after lap)
+    "repetitive": dict(repetitive_gain=0.5, repetitive_advance=3, repetitive_smooth=1,
+                       obs_features=("tip_error", "prev_action")),
     # the same filter on the tip's readings, episodes at their own noise levels
     "arm_filter": dict(arm_filter=True, target_filter=True, random_noise=True,
                        nominal_share=0.5, obs_features=OBS_FEATURES,

@@ -577,6 +577,14 @@ PRESETS.update([
     _preset("v5_err_decay_finetuned", "v5_err_decay_continued restarted gently (its seeds' own "
             "exploration, lr 3e-4): the control of v5_err_decay_preview_finetuned (18-D)",
             env=dict(obs_features=OBS_15 + ("tip_error",)), **HEADLINE_GENTLY),
+    # The lap-to-lap correction in the loop from a lead that already tracks: the headline
+    # study's seeds trained on gently beside it (v5_err_decay_finetuned, its control, moved
+    # nothing: +0.016 cm settled, not shown), so the pair is the seeds with the correction added
+    # after training against the same seeds trained with it. Knows the planned path.
+    _preset("v5_err_decay_repetitive_finetuned", "v5_err_decay_finetuned with the lap-to-lap "
+            "correction in the loop (v5_err_decay_repetitive's setting; knows the planned path)",
+            env=dict(obs_features=OBS_15 + ("tip_error",), repetitive_gain=0.3,
+                     repetitive_advance=15, repetitive_smooth=0), **HEADLINE_GENTLY),
     _preset("v5_err_decay_preview_finetuned", "v5_err_decay_preview_continued restarted gently "
             "(its seeds' own exploration, lr 3e-4; 36-D): knows the planned path",
             env=dict(obs_features=OBS_15 + ("tip_error", "target_preview")), **HEADLINE_GENTLY),
