@@ -49,6 +49,9 @@ CONTINUED = ("v5_err_decay_continued_5m", "v5_err_decay_preview_continued_5m",
 # the headline's preset trained with the lap-to-lap correction in the loop (issue 37, "a lead of
 # another kind" co-adapted: EnvConfig.repetitive_gain; knows the planned path)
 LOOPED = "v5_err_decay_repetitive_5m"
+# ... and the headline study's five trained seeds trained on gently with it (its control:
+# v5_err_decay_finetuned_5m, the same without the correction)
+LOOPED_FT = "v5_err_decay_repetitive_finetuned_5m"
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
@@ -57,7 +60,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
-              "v5_err_decay_actions_5m", LOOPED,
+              "v5_err_decay_actions_5m", LOOPED, LOOPED_FT,
               *LARGE_BATCH, *CONTINUED, *PILOTS]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
@@ -129,7 +132,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
         "v5_err_decay_kept": "v5_err_decay_kept", "v5_err_decay_actions_5m": "v5_err_decay_actions_5m",
-        LOOPED: LOOPED,
+        LOOPED: LOOPED, LOOPED_FT: LOOPED_FT,
         **{s: s for s in (*LARGE_BATCH, *CONTINUED, *PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
@@ -161,7 +164,8 @@ ONLINE_PLAIN = {**{f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(
                 **{f"late100_s{k}": f"seeds/{LATE100}_s{k}" for k in range(1, 6)}}
 # ... and the five seeds trained with the correction in the loop (their env runs it: played as
 # they are, nothing added on top)
-LOOPED_SEEDS = {f"looped_s{k}": f"seeds/{LOOPED}_s{k}" for k in range(1, 6)}
+LOOPED_SEEDS = {**{f"looped_s{k}": f"seeds/{LOOPED}_s{k}" for k in range(1, 6)},
+                **{f"looped_ft_s{k}": f"seeds/{LOOPED_FT}_s{k}" for k in range(1, 6)}}
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
           "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),

@@ -190,3 +190,21 @@ def test_the_oracle_starts_from_the_in_loop_correction_as_from_the_played_one():
                                wrap(act, OnlineCorrection("repetitive", 0.3, 15)))
     np.testing.assert_array_equal(a, b)
     assert history_a == history_b and history_a[-1] < history_a[0]
+
+
+def test_a_baseline_on_an_in_loop_models_env_plays_without_the_correction(monkeypatch):
+    """The analytic lead asked to play on such a model's env is the analytic lead (the
+    correction on top of it is online_correction.py's own set); the policy keeps it, and the
+    oracle started from the policy replays without it (it is in the leads it recorded)."""
+    from pathlib import Path
+
+    from panda_lead import harness, models
+
+    env = {"repetitive_gain": 0.3, "repetitive_advance": 15}
+    monkeypatch.setattr(models, "load_policy", lambda path: (
+        object(), env, {"model_sha256": "0" * 64}))
+    monkeypatch.setattr(harness.controllers, "make_policy", lambda *a, **k: None)
+    for name, gain in (("classical", 0.0), ("analytic", 0.0), ("policy", 0.3)):
+        assert harness.build(name, 10, Path("looped.zip")).config.repetitive_gain == gain
+    oracle = harness.build("ilc", 10, Path("looped.zip"))
+    assert oracle.config.repetitive_gain == 0.0 and oracle.init_config.repetitive_gain == 0.3
