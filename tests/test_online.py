@@ -119,6 +119,8 @@ def test_a_rollout_set_records_its_correction_and_names_it():
     assert identity(base) != identity(corrected)  # never one set, never mixed in a folder
     rollouts = {0: SimpleNamespace(meta={**corrected, "env": {"action": "lead"}})}
     assert controller_label(rollouts, "x") == "RL+Lead + repetitive"
+    looped = {0: SimpleNamespace(meta={**base, "env": {"repetitive_gain": 0.3}})}
+    assert controller_label(looped, "x") == "RL+Lead + repetitive in the loop"
 
 
 def test_bad_settings_are_refused():

@@ -30,7 +30,7 @@ POLICY_ACTION_LABELS = {"joint": "RL+Joint residual", "joint_target": "RL joint 
 
 def controller_label(rollouts: dict, prefix: str) -> str:
     """A set's display name: from the controller its rollouts record (a policy by its action,
-    an online correction after it), else from its usual prefix (ikpd, analytic, eval), else
+    an online correction after it, played on top or in its env's loop), else from its usual prefix (ikpd, analytic, eval), else
     the prefix itself."""
     kinds = {r.meta.get("controller") for r in rollouts.values()}
     known = CONTROLLER_LABELS.get(kinds.pop()) if len(kinds) == 1 else None
@@ -38,6 +38,9 @@ def controller_label(rollouts: dict, prefix: str) -> str:
         envs = [r.meta.get("env") for r in rollouts.values()]
         actions = {e.get("action", "lead") if isinstance(e, dict) else "lead" for e in envs}
         known = POLICY_ACTION_LABELS.get(actions.pop(), known) if len(actions) == 1 else known
+    looped = {bool((r.meta.get("env") or {}).get("repetitive_gain")) for r in rollouts.values()}
+    if known and looped == {True}:  # trained and played with it in the loop (EnvConfig)
+        known = f"{known} + repetitive in the loop"
     online = {(r.meta.get("online") or {}).get("kind") for r in rollouts.values()}
     if known and len(online) == 1 and None not in online:  # panda_lead/online.py's corrections
         known = f"{known} + {online.pop()}"
