@@ -118,7 +118,7 @@ CHOSEN = {"v5_5m": ("v5", ["v5"]), HEADLINE: (HEADLINE_STUDY, [HEADLINE_STUDY]),
               ["deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"]),
           "preview_continued_10m": ("v5_err_decay_preview_continued_5m",
                                     ["v5_err_decay_preview_continued_5m"]),
-          LOOPED: (LOOPED, [LOOPED]),
+          LOOPED: (LOOPED, [LOOPED]), LOOPED_FT: (LOOPED_FT, [LOOPED_FT]),
           "preview_finetuned_10m": ("v5_err_decay_preview_finetuned_5m",
                                     ["v5_err_decay_preview_finetuned_5m",
                                      "v5_err_decay_preview_finetuned_5m_rest"])}
@@ -141,7 +141,8 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
 HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
-               "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE, LOOPED]
+               "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE, LOOPED,
+               LOOPED_FT]
 # single seeds' models (archive/seeds/<name>.zip) whose test-seed rollouts a table pairs: the
 # device pilots on the deployment world's share of nominal episodes (docs/deploy.md)
 SEED_POLICY_SETS = SHARE_LADDER
@@ -149,7 +150,7 @@ SEED_POLICY_SETS = SHARE_LADDER
 ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
            "ilc_preview_continued": "preview_continued_10m",
            "ilc_preview_finetuned": "preview_finetuned_10m", "ilc_hardware": HARDWARE,
-           "ilc_looped": LOOPED}
+           "ilc_looped": LOOPED, "ilc_looped_ft": LOOPED_FT}
 
 
 # online corrections on top of a lead (studies/online_correction.py; settings tuned on the tuning
@@ -171,7 +172,11 @@ ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),
           **{f"{p}_repetitive": ("policy", m, *(ONLINE_REPETITIVE if p.startswith("kept")
                                                 else ONLINE_HARDWARE))
-             for p, m in ONLINE_PLAIN.items()}}
+             for p, m in ONLINE_PLAIN.items()},
+          # the in-loop finetuned study's control (the same gentle 5M steps without the
+          # correction) with the correction added after training: the like-for-like pair
+          **{f"finetuned_s{k}_repetitive": ("policy", f"seeds/v5_err_decay_finetuned_5m_s{k}",
+                                            *ONLINE_REPETITIVE) for k in range(1, 6)}}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")

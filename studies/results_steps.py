@@ -41,7 +41,8 @@ BY_SELECTION = {HEADLINE_STUDY, "deploy_caps_armfilter_5m", "deploy_large_batch_
                 "v5_err_decay_preview_finetuned_5m",
                 "deploy_large_batch_curv10_actions_stack4_finetuned_n50_5m",
                 "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m",
-                "preview_feedforward_5m", "v5_err_decay_repetitive_5m"}
+                "preview_feedforward_5m", "v5_err_decay_repetitive_5m",
+                "v5_err_decay_repetitive_finetuned_5m"}
 # The device pilots on the deployment world's share of nominal episodes (archive/seeds/<name>
 # models, each paired with the next on the test seeds): the headline's preset, the deployment
 # world on nominal episodes alone, 3 in 4, 1 in 2, then 1 in 2 under the cpu profile.
@@ -579,6 +580,9 @@ def table_steps() -> list[Step]:
              "looped_vs_plain": ("kept_s{k}", "looped_s{k}", "plain", "trained with it"),
              "looped_finetuned_vs_added": ("kept_s{k}_repetitive", "looped_ft_s{k}",
                                            "added after training", "trained on with it"),
+             "looped_finetuned_vs_control_added": ("finetuned_s{k}_repetitive", "looped_ft_s{k}",
+                                                   "trained on without it, added after",
+                                                   "trained on with it"),
              "looped_finetuned_vs_looped": ("looped_s{k}", "looped_ft_s{k}",
                                             "trained with it from scratch",
                                             "trained on with it")}
@@ -591,7 +595,8 @@ def table_steps() -> list[Step]:
                           stdout=True, section="all"))
     looped_ft = "v5_err_decay_repetitive_finetuned_5m"
     steps += [_report(looped_ft), _compare(looped_ft, "v5_err_decay_finetuned_5m"),
-              _compare(looped_ft, "v5_err_decay_kept")]
+              _compare(looped_ft, "v5_err_decay_kept"),
+              _oracle_table(f"{on}/looped_finetuned_with_oracle.md", looped_ft, "ilc_looped_ft")]
     steps += [_report(looped), _compare(looped, "v5_err_decay_kept"),
               _pair("headline_repetitive", looped, f"{on}/looped_vs_headline_repetitive.md"),
               _oracle_table(f"{on}/looped_with_oracle.md", looped, "ilc_looped")]
