@@ -586,8 +586,8 @@ def table_steps() -> list[Step]:
              "looped_finetuned_vs_looped": ("looped_s{k}", "looped_ft_s{k}",
                                             "trained with it from scratch",
                                             "trained on with it")}
-    for name, (a, b, a_name, b_name) in pairs.items():
-        sets = [(a.format(k=k), b.format(k=k)) for k in range(1, 6)]
+    for name, (side_a, side_b, a_name, b_name) in pairs.items():
+        sets = [(side_a.format(k=k), side_b.format(k=k)) for k in range(1, 6)]
         steps.append(Step((f"{on}/{name}.md",),
                           ("studies/online_correction.py", "summary", "--pairs",
                            *(f"{x}:{y}" for x, y in sets), "--names", a_name, b_name),
