@@ -26,13 +26,14 @@ OBS_FEATURES = {
     "preview_jerk": 18,  # the same points as what the Taylor guess misses (see OBS_SCALE)
     "installation": 4,  # what the installation's engineer knows: latencies and noise (OBS_SCALE)
     "recent_actions": 18,  # RECENT_ACTIONS of the policy's own last actions, never delayed
+    "repetitive_correction": 3,  # the in-loop lap-to-lap correction's present value (m)
 }
 # recent_actions: the policy's last actions, newest first. Under k steps of latency each way a
 # lead's observation is k steps old and its action lands k steps late, so the last 2k actions
 # are what the delayed system needs to be Markov again (issue 36); 2 x 3 steps at most here.
 RECENT_ACTIONS = 6
 # Features the controller knows rather than measures: never noisy
-KNOWN_FEATURES = ("installation", "recent_actions")
+KNOWN_FEATURES = ("installation", "recent_actions", "repetitive_correction")
 # The features that show the planned path ahead: a model observing one "knows the planned path"
 # (issue 37), a labelled variant never ranked with the causal ones.
 PATH_FEATURES = ("target_preview", "preview_jerk")
@@ -89,6 +90,10 @@ OBS_SCALE = {
     # The lead's computer knows what it sent when it sent it: unlike every other feature this
     # one skips the observation delay (and is never noisy).
     "recent_actions": 1.0,
+    # The lap-to-lap correction the env adds to this step's lead (EnvConfig.repetitive_gain),
+    # computed by the controller from the errors of the last lap (known, not measured): what
+    # the policy's lead is added to (0 without one). Centimetres, so tip_error's scale.
+    "repetitive_correction": 0.05,
 }
 PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
 # The observation layouts of the reference ladder (the presets build on them).
@@ -434,6 +439,14 @@ class EnvConfig:
     def replace(self, **changes) -> EnvConfig:
         """A copy with ``changes``, each replacing the setting whole."""
         return self.from_dict({**self.to_dict(), **changes})
+
+    def without_correction(self) -> EnvConfig:
+        """This env without the in-loop lap-to-lap correction (repetitive_gain 0, its feature
+        no longer observed): where a baseline plays, or the oracle replays corrected leads."""
+        if not self.repetitive_gain:
+            return self
+        return self.replace(repetitive_gain=0.0, obs_features=tuple(
+            f for f in self.obs_features if f != "repetitive_correction"))
 
     def merged(self, overrides: dict) -> EnvConfig:
         """A copy with ``overrides`` applied the way a command line means them: a mapping

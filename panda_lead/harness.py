@@ -112,7 +112,7 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
     if config.feedforward and not needs_model:  # a baseline on a residual model's env plays
         config = config.replace(feedforward=False)  # without it: else it is that rival
     if env_config.repetitive_gain and not needs_model:  # ... and without the model's in-loop
-        config = config.replace(repetitive_gain=0.0)  # correction (online_correction.py adds it)
+        config = config.without_correction()  # correction (online_correction.py adds it)
     if name == "policy":
         act = controllers.make_policy(policy, deterministic=not stochastic)
         return Controller(name, config, meta, act, policy=policy, dropped=dropped)
@@ -141,7 +141,7 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
     meta["ilc"] = oracle_meta(ilc, meta.get("model_sha256") if ilc.init == "policy" else None)
     # A model trained with the lap-to-lap correction in the loop starts the oracle as it runs,
     # correction and all; the corrected leads it records are then replayed without it
-    return Controller(name, config.replace(repetitive_gain=0.0), meta, ilc=ilc, init_act=init,
+    return Controller(name, config.without_correction(), meta, ilc=ilc, init_act=init,
                       init_config=config, policy=policy, dropped=dropped)
 
 

@@ -124,7 +124,7 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
     if on_iteration:
         on_iteration(0, history[-1])
     steps = leads.shape[1]
-    replay_config = config.replace(repetitive_gain=0.0) if config.repetitive_gain else config
+    replay_config = config.without_correction()
     ahead = np.minimum(np.arange(steps) + ilc.shift, steps - 1)
     gain = np.full((len(seeds), 1, 1), ilc.gain)
     for j in range(1, ilc.iterations + 1):

@@ -135,6 +135,7 @@ class LeadTask:
         # The lap-to-lap correction in the loop (EnvConfig.repetitive_gain): online.py's law,
         # the one a trained lead is played with
         self._corrector = None
+        self._correction_observed = "repetitive_correction" in self._features
         if c.repetitive_gain:
             from . import online
 
@@ -347,6 +348,9 @@ class LeadTask:
             source["tip_error_avg"] = self.err_avg
         if self._installation_cols is not None:
             source["installation"] = self._installation
+        if self._correction_observed:  # this step's correction (_control adds the same: the
+            source["repetitive_correction"] = (  # law is idempotent); none: 0
+                self._corrector(self) if self._corrector is not None else 0.0)
         if self._preview_observed:
             k = np.minimum(np.maximum(core.step_count - self.target_delay, 0),
                            self.config.episode_steps)

@@ -202,7 +202,8 @@ def test_a_baseline_on_an_in_loop_models_env_plays_without_the_correction(monkey
 
     from panda_lead import harness, models
 
-    env = {"repetitive_gain": 0.3, "repetitive_advance": 15}
+    env = {"repetitive_gain": 0.3, "repetitive_advance": 15,
+           "obs_features": ["tip_error", "repetitive_correction"]}  # (it observes it, too)
     monkeypatch.setattr(models, "load_policy", lambda path: (
         object(), env, {"model_sha256": "0" * 64}))
     monkeypatch.setattr(harness.controllers, "make_policy", lambda *a, **k: None)
@@ -210,3 +211,29 @@ def test_a_baseline_on_an_in_loop_models_env_plays_without_the_correction(monkey
         assert harness.build(name, 10, Path("looped.zip")).config.repetitive_gain == gain
     oracle = harness.build("ilc", 10, Path("looped.zip"))
     assert oracle.config.repetitive_gain == 0.0 and oracle.init_config.repetitive_gain == 0.3
+
+
+def test_the_observed_correction_is_the_one_the_env_adds():
+    """repetitive_correction shows the policy, before it acts, the correction the env then adds
+    to its lead: with a zero policy the applied lead is exactly the observed correction."""
+    from panda_lead.config import OBS_SCALE, EnvConfig, obs_layout
+    from panda_lead.task import LeadTask
+
+    config = EnvConfig(episode_steps=300, repetitive_gain=0.3, repetitive_advance=15,
+                       obs_features=("tip_error", "repetitive_correction"))
+    cols = next(slice(a, b) for f, a, b in obs_layout(config.obs_features)
+                if f == "repetitive_correction")
+    task = LeadTask(config, 2, nthread=1)
+    obs = task.reset(None, [800_000, 800_001], ["circle", "fig8"])
+    seen = []
+    for _ in range(config.episode_steps):
+        c = obs[:, cols].astype(np.float64) * OBS_SCALE["repetitive_correction"]
+        obs, *_, info = task.step(np.zeros((2, 3), np.float32))
+        np.testing.assert_allclose(info["lead"], c, atol=1e-7)  # (float32 observation)
+        seen.append(np.abs(c).max())
+    assert max(seen) > 1e-3  # it acted within the episode
+    plain = LeadTask(config.replace(repetitive_gain=0.0), 2, nthread=1)  # none: it reads 0
+    obs = plain.reset(None, [800_000, 800_001], ["circle", "fig8"])
+    for _ in range(150):
+        assert not obs[:, cols].any()
+        obs, *_ = plain.step(np.full((2, 3), 0.5, np.float32))

@@ -30,8 +30,8 @@ POLICY_ACTION_LABELS = {"joint": "RL+Joint residual", "joint_target": "RL joint 
 
 def controller_label(rollouts: dict, prefix: str) -> str:
     """A set's display name: from the controller its rollouts record (a policy by its action,
-    an online correction after it, played on top or in its env's loop), else from its usual prefix (ikpd, analytic, eval), else
-    the prefix itself."""
+    an online correction after it, played on top or in its env's loop), else from its usual
+    prefix (ikpd, analytic, eval), else the prefix itself."""
     kinds = {r.meta.get("controller") for r in rollouts.values()}
     known = CONTROLLER_LABELS.get(kinds.pop()) if len(kinds) == 1 else None
     if known == "RL+Lead":

@@ -95,7 +95,7 @@ class TrackingEval(BaseCallback):
         # (feedforward) they play without the feedforward, as eval.py's do (a zero lead
         # there IS the feedforward rival, and the analytic lead on top of it leads twice);
         # the rival the residual starts from is a third line.
-        as_lead = config.env.replace(action="lead", feedforward=False, repetitive_gain=0.0)
+        as_lead = config.env.without_correction().replace(action="lead", feedforward=False)
         self.baselines = {"classical": evaluate(classical, as_lead, config.eval_steps),
                           "analytic": evaluate(make_analytic(), as_lead, config.eval_steps)}
         if config.env.feedforward:

@@ -147,6 +147,14 @@ PRESETS.update([
             "in the loop (gain 0.3, advance 15 steps; knows the planned path)",
             env=dict(obs_features=OBS_15 + ("tip_error",), repetitive_gain=0.3,
                      repetitive_advance=15, repetitive_smooth=0), lr_schedule="linear"),
+    # ... with the correction it adds observed (repetitive_correction, 21-D): trained beside
+    # it the lead gained nothing shown over the correction added after training; seeing it,
+    # can the policy set its own use of the lap's memory (scale, phase) per path?
+    _preset("v5_err_decay_repetitive_observed", "v5_err_decay_repetitive + the correction it "
+            "adds observed (21-D; knows the planned path)",
+            env=dict(obs_features=OBS_15 + ("tip_error", "repetitive_correction"),
+                     repetitive_gain=0.3, repetitive_advance=15, repetitive_smooth=0),
+            lr_schedule="linear"),
     # + the policy's own last 6 actions (recent_actions): in the deployment world they bought
     # 0.07 cm without delay (issue 36); does the headline's world take the same memory?
     _preset("v5_err_decay_actions", "v5_err_decay + the policy's own last 6 actions observed "
