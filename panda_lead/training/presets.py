@@ -155,6 +155,19 @@ PRESETS.update([
             env=dict(obs_features=OBS_15 + ("tip_error", "repetitive_correction"),
                      repetitive_gain=0.3, repetitive_advance=15, repetitive_smooth=0),
             lr_schedule="linear"),
+    # The same two trained on 5 s episodes (500 steps, the test episodes' length; 2 s
+    # elsewhere): in a 2 s episode the correction acts only after a lap and 0.5 s (a median
+    # circle's lap is 0.68 s, a figure-eight's 1.2 s, most splines' more than 2 s), so the lead
+    # rarely met it in training. The plain one is the control of the one with it in the loop.
+    _preset("v5_err_decay_long", "v5_err_decay on 5 s training episodes (the control of "
+            "v5_err_decay_repetitive_long)",
+            env=dict(obs_features=OBS_15 + ("tip_error",), episode_steps=500),
+            lr_schedule="linear"),
+    _preset("v5_err_decay_repetitive_long", "v5_err_decay_repetitive on 5 s training episodes "
+            "(knows the planned path)",
+            env=dict(obs_features=OBS_15 + ("tip_error",), episode_steps=500,
+                     repetitive_gain=0.3, repetitive_advance=15, repetitive_smooth=0),
+            lr_schedule="linear"),
     # + the policy's own last 6 actions (recent_actions): in the deployment world they bought
     # 0.07 cm without delay (issue 36); does the headline's world take the same memory?
     _preset("v5_err_decay_actions", "v5_err_decay + the policy's own last 6 actions observed "
