@@ -52,7 +52,8 @@ LOOPED = "v5_err_decay_repetitive_5m"
 # ... and the headline study's five trained seeds trained on gently with it (its control:
 # v5_err_decay_finetuned_5m, the same without the correction)
 LOOPED_FT = "v5_err_decay_repetitive_finetuned_5m"
-# ... and from random weights with the correction it adds observed (repetitive_correction)
+# ... and from random weights with the correction it adds observed (repetitive_correction; a
+# pilot stopped after two seeds: summaries only)
 LOOPED_OBS = "v5_err_decay_repetitive_observed_5m"
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
@@ -134,7 +135,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
         "v5_err_decay_kept": "v5_err_decay_kept", "v5_err_decay_actions_5m": "v5_err_decay_actions_5m",
-        LOOPED: LOOPED, LOOPED_FT: LOOPED_FT, LOOPED_OBS: LOOPED_OBS,
+        LOOPED: LOOPED, LOOPED_FT: LOOPED_FT,
         **{s: s for s in (*LARGE_BATCH, *CONTINUED, *PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
@@ -168,8 +169,7 @@ ONLINE_PLAIN = {**{f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(
 # ... and the five seeds trained with the correction in the loop (their env runs it: played as
 # they are, nothing added on top)
 LOOPED_SEEDS = {**{f"looped_s{k}": f"seeds/{LOOPED}_s{k}" for k in range(1, 6)},
-                **{f"looped_ft_s{k}": f"seeds/{LOOPED_FT}_s{k}" for k in range(1, 6)},
-                **{f"looped_obs_s{k}": f"seeds/{LOOPED_OBS}_s{k}" for k in range(1, 6)}}
+                **{f"looped_ft_s{k}": f"seeds/{LOOPED_FT}_s{k}" for k in range(1, 6)}}
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
           "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),

@@ -583,11 +583,6 @@ def table_steps() -> list[Step]:
              "looped_finetuned_vs_control_added": ("finetuned_s{k}_repetitive", "looped_ft_s{k}",
                                                    "trained on without it, added after",
                                                    "trained on with it"),
-             "looped_observed_vs_looped": ("looped_s{k}", "looped_obs_s{k}",
-                                           "trained with it", "trained with it, observing it"),
-             "looped_observed_vs_added": ("kept_s{k}_repetitive", "looped_obs_s{k}",
-                                          "added after training",
-                                          "trained with it, observing it"),
              "looped_finetuned_vs_looped": ("looped_s{k}", "looped_ft_s{k}",
                                             "trained with it from scratch",
                                             "trained on with it")}
@@ -599,8 +594,7 @@ def table_steps() -> list[Step]:
                           tuple(f"rollouts/{x}" for pair in sets for x in pair),
                           stdout=True, section="all"))
     looped_obs = "v5_err_decay_repetitive_observed_5m"
-    steps += [_report(looped_obs), _compare(looped_obs, looped), _compare(looped_obs,
-                                                                          "v5_err_decay_kept")]
+    steps += [_report(looped_obs), _compare(looped_obs, looped)]  # (a two-seed pilot)
     looped_ft = "v5_err_decay_repetitive_finetuned_5m"
     steps += [_report(looped_ft), _compare(looped_ft, "v5_err_decay_finetuned_5m"),
               _compare(looped_ft, "v5_err_decay_kept"),
