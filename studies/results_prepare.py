@@ -55,6 +55,9 @@ LOOPED_FT = "v5_err_decay_repetitive_finetuned_5m"
 # ... and from random weights with the correction it adds observed (repetitive_correction; a
 # pilot stopped after two seeds: summaries only)
 LOOPED_OBS = "v5_err_decay_repetitive_observed_5m"
+# ... and both the headline's preset and the in-loop one on 5 s training episodes (2 s elsewhere:
+# the correction acts in training as at test; the plain one is the control)
+LONG, LOOPED_LONG = "v5_err_decay_long_5m", "v5_err_decay_repetitive_long_5m"
 SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "v5_err_avg_decay",
               "v5_err_decay_smooth", "v5_track", "v5_prev", "v7", "delayed_5m", "noisy_5m",
               "ikfree", "ikfree_long", "ikfree_5m", "err_delayed", "v5_err_decay_wide",
@@ -63,7 +66,7 @@ SUMMARIZED = ["v5", "v5_joint", "climb", "v5_decay", "v5_err", "v5_err_decay", "
               "deploy_known_5m", "deploy_nominal_5m", "preview_feedforward_5m",
               "preview_feedforward_settled_5m", "deploy_armfilter_5m", "deploy_caps_5m",
               "deploy_unsmoothed_5m", "deploy_caps_armfilter_5m", "v5_err_decay_kept",
-              "v5_err_decay_actions_5m", LOOPED, LOOPED_FT, LOOPED_OBS,
+              "v5_err_decay_actions_5m", LOOPED, LOOPED_FT, LOOPED_OBS, LONG, LOOPED_LONG,
               *LARGE_BATCH, *CONTINUED, *PILOTS]
 # study -> sweep folders of its later seeds (queue.sh side5m, headline5 and main; a pilot's
 # study grown to five seeds under another sweep name)
@@ -135,7 +138,7 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
         # the headline's preset retrained with every seed kept (issue 37's re-rank), and issue
         # 36's large-batch studies
         "v5_err_decay_kept": "v5_err_decay_kept", "v5_err_decay_actions_5m": "v5_err_decay_actions_5m",
-        LOOPED: LOOPED, LOOPED_FT: LOOPED_FT,
+        LOOPED: LOOPED, LOOPED_FT: LOOPED_FT, LONG: LONG, LOOPED_LONG: LOOPED_LONG,
         **{s: s for s in (*LARGE_BATCH, *CONTINUED, *PILOTS)
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
@@ -165,16 +168,18 @@ ONLINE_REPETITIVE = ("repetitive", 0.3, 15, 0)  # tuning_headline.md
 ONLINE_HARDWARE = ("repetitive", 0.5, 10, 3)  # tuning_hardware.md
 LATE100 = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"  # the hardware study
 ONLINE_PLAIN = {**{f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)},
-                **{f"late100_s{k}": f"seeds/{LATE100}_s{k}" for k in range(1, 6)}}
+                **{f"late100_s{k}": f"seeds/{LATE100}_s{k}" for k in range(1, 6)},
+                **{f"long_s{k}": f"seeds/{LONG}_s{k}" for k in range(1, 6)}}
 # ... and the five seeds trained with the correction in the loop (their env runs it: played as
 # they are, nothing added on top)
 LOOPED_SEEDS = {**{f"looped_s{k}": f"seeds/{LOOPED}_s{k}" for k in range(1, 6)},
-                **{f"looped_ft_s{k}": f"seeds/{LOOPED_FT}_s{k}" for k in range(1, 6)}}
+                **{f"looped_ft_s{k}": f"seeds/{LOOPED_FT}_s{k}" for k in range(1, 6)},
+                **{f"looped_long_s{k}": f"seeds/{LOOPED_LONG}_s{k}" for k in range(1, 6)}}
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
           "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),
-          **{f"{p}_repetitive": ("policy", m, *(ONLINE_REPETITIVE if p.startswith("kept")
-                                                else ONLINE_HARDWARE))
+          **{f"{p}_repetitive": ("policy", m, *(ONLINE_HARDWARE if p.startswith("late100")
+                                                else ONLINE_REPETITIVE))
              for p, m in ONLINE_PLAIN.items()},
           # the in-loop finetuned study's control (the same gentle 5M steps without the
           # correction) with the correction added after training: the like-for-like pair

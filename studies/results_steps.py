@@ -583,6 +583,13 @@ def table_steps() -> list[Step]:
              "looped_finetuned_vs_control_added": ("finetuned_s{k}_repetitive", "looped_ft_s{k}",
                                                    "trained on without it, added after",
                                                    "trained on with it"),
+             "looped_long_vs_added": ("long_s{k}_repetitive", "looped_long_s{k}",
+                                      "added after training", "trained with it"),
+             "looped_long_vs_looped": ("looped_s{k}", "looped_long_s{k}",
+                                       "trained with it on 2 s episodes", "on 5 s episodes"),
+             "long_added_vs_added": ("kept_s{k}_repetitive", "long_s{k}_repetitive",
+                                     "added after training on 2 s episodes",
+                                     "on 5 s episodes"),
              "looped_finetuned_vs_looped": ("looped_s{k}", "looped_ft_s{k}",
                                             "trained with it from scratch",
                                             "trained on with it")}
@@ -595,6 +602,9 @@ def table_steps() -> list[Step]:
                           stdout=True, section="all"))
     looped_obs = "v5_err_decay_repetitive_observed_5m"
     steps += [_report(looped_obs), _compare(looped_obs, looped)]  # (a two-seed pilot)
+    long, looped_long = "v5_err_decay_long_5m", "v5_err_decay_repetitive_long_5m"
+    steps += [_report(long), _compare(long, "v5_err_decay_kept"), _report(looped_long),
+              _compare(looped_long, long), _compare(looped_long, looped)]
     looped_ft = "v5_err_decay_repetitive_finetuned_5m"
     steps += [_report(looped_ft), _compare(looped_ft, "v5_err_decay_finetuned_5m"),
               _compare(looped_ft, "v5_err_decay_kept"),
