@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kalman, trajectory
+from . import kalman, online, trajectory
 from .config import (
     LIMIT_FEASIBLE_ACC,
     LIMIT_FROM_S,
@@ -137,8 +137,6 @@ class LeadTask:
         self._corrector = None
         self._correction_observed = "repetitive_correction" in self._features
         if c.repetitive_gain:
-            from . import online
-
             self._corrector = online.Corrector(online.OnlineCorrection(
                 "repetitive", c.repetitive_gain, c.repetitive_advance, c.repetitive_smooth))
         # The lead's low-pass (EnvConfig.lead_filter_hz): the share of the way it moves per step
@@ -505,9 +503,7 @@ class LeadTask:
             shift = None
         if kind == "lead":
             if self._corrector is not None:
-                from .online import corrected_action
-
-                applied = corrected_action(applied, self._corrector(self),
+                applied = online.corrected_action(applied, self._corrector(self),
                                            self.config.max_lead).astype(np.float64)
             if self._lead_alpha is None:
                 self.lead = applied * self.config.max_lead
