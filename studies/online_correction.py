@@ -43,8 +43,10 @@ class Args:
     command: tyro.conf.Positional[Literal["tune", "play", "summary"]]
     """tune: the grid on the tuning seeds; play: one setting as a rollout set; summary: a
     five-seed study's sets with and without a correction (--pairs)."""
-    base: Literal["policy", "analytic"] = "policy"
-    """The lead the correction adds to: a PPO model (--model) or the analytic lead."""
+    base: Literal["policy", "analytic", "feedforward"] = "policy"
+    """The lead the correction adds to: a PPO model (--model), the analytic lead, or none on
+    top of the model-based feedforward rival (EnvConfig.feedforward: the correction is then
+    the rival's lap-to-lap version, shifting the target its IK aims at)."""
     model: Path | None = None
     """The model for --base policy (default: the headline, archive/<DEFAULT_MODEL>.zip)."""
     integral_gains: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0)
@@ -83,14 +85,20 @@ class Args:
 
 def _base(args: Args):
     """The base controller on its evaluation env, 5 s episodes."""
+    from dataclasses import replace
+
     from panda_lead import harness
     from panda_lead.core import control_dt
 
     steps = int(round(5.0 / control_dt()))
+    if args.base != "policy" and args.model is not None:
+        raise UserError(f"--model is for --base policy; the {args.base} base has none")
     if args.base == "analytic":
-        if args.model is not None:
-            raise UserError("--model is for --base policy; the analytic lead has none")
         return harness.build("analytic", steps)
+    if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
+        ctrl = harness.build("classical", steps)
+        meta = {**ctrl.meta, "controller": "feedforward", "knows_path": True}
+        return replace(ctrl, config=ctrl.config.replace(feedforward=True), meta=meta)
     return harness.build("policy", steps, model=args.model)
 
 
@@ -120,9 +128,14 @@ def tune(args: Args) -> None:
     ctrl = _base(args)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
-    lead = ctrl.meta.get("model") or "the analytic lead"
+    lead = ctrl.meta.get("model") or {"analytic": "the analytic lead",
+                                      "feedforward": "the feedforward rival"}[args.base]
     given = f" --model {args.model}" if args.model is not None else ""
-    print(f"`uv run studies/online_correction.py tune --base {args.base}{given}` at commit {commit}: "
+    grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
+                         for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
+                         if getattr(args, name) != getattr(Args, name))
+    print(f"`uv run studies/online_correction.py tune --base {args.base}{given}{grid_flags}` at "
+          f"commit {commit}: "
           f"online corrections on top of {lead}; tuning seeds {TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]} "
           f"({len(TUNE_SEEDS)}), 5 s episodes; mean / settled (t >= 0.5 s) tracking error, cm. "
           "The lowest settled error of each kind is its tuned setting.\n")
@@ -166,6 +179,9 @@ def play(args: Args) -> None:
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
+        if args.base == "feedforward":
+            raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
+                            "env; the feedforward base has none (its oracle is not built)")
         ctrl = _oracle(args, correction)
     else:
         ctrl = _base(args)

@@ -167,7 +167,10 @@ ORACLES = {"ilc": HEADLINE, "ilc_preview": "preview_5m",
 ONLINE_REPETITIVE = ("repetitive", 0.3, 15, 0)  # tuning_headline.md
 ONLINE_HARDWARE = ("repetitive", 0.5, 10, 3)  # tuning_hardware.md
 LATE100 = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"  # the hardware study
+ONLINE_FEEDFORWARD = ("repetitive", 0.3, 12, 5)  # tuning_feedforward.md (the rival's own)
+ONLINE_RESIDUAL = ("repetitive", 0.5, 9, 3)  # tuning_residual.md: the learned residual on it
 ONLINE_PLAIN = {**{f"kept_s{k}": f"seeds/v5_err_decay_kept_s{k}" for k in range(1, 6)},
+                **{f"residual_s{k}": f"seeds/preview_feedforward_5m_s{k}" for k in range(1, 6)},
                 **{f"late100_s{k}": f"seeds/{LATE100}_s{k}" for k in range(1, 6)},
                 **{f"long_s{k}": f"seeds/{LONG}_s{k}" for k in range(1, 6)}}
 # ... and the five seeds trained with the correction in the loop (their env runs it: played as
@@ -178,8 +181,11 @@ LOOPED_SEEDS = {**{f"looped_s{k}": f"seeds/{LOOPED}_s{k}" for k in range(1, 6)},
 ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           "analytic_repetitive": ("analytic", None, "repetitive", 0.3, 10, 3),  # tuning_analytic
           "hardware_repetitive": ("policy", HARDWARE, *ONLINE_HARDWARE),
-          **{f"{p}_repetitive": ("policy", m, *(ONLINE_HARDWARE if p.startswith("late100")
-                                                else ONLINE_REPETITIVE))
+          # the model-based feedforward rival's lap-to-lap version (the same knowledge)
+          "feedforward_repetitive": ("feedforward", None, *ONLINE_FEEDFORWARD),
+          **{f"{p}_repetitive": ("policy", m, *{"late100": ONLINE_HARDWARE,
+                                                "residual": ONLINE_RESIDUAL}.get(
+                                                    p.split("_s")[0], ONLINE_REPETITIVE))
              for p, m in ONLINE_PLAIN.items()},
           # the in-loop finetuned study's control (the same gentle 5M steps without the
           # correction) with the correction added after training: the like-for-like pair
@@ -266,7 +272,8 @@ def prepare(root: Path) -> None:
         dirs = sorted(glob.glob(f"sweeps/{pattern}/runs", root_dir=root))
         if dirs:
             _run(root, *runs, "keep", "--study", study, "--runs", *dirs)
-    for base, extra in [("classical", []), ("analytic", ["--controller", "analytic"])]:
+    for base, extra in [("classical", []), ("analytic", ["--controller", "analytic"]),
+                        ("feedforward", ["--controller", "feedforward"])]:
         if not (root / "rollouts" / base).is_dir():
             _run(root, "ikpd.py", "--seeds", "0-999", "--prefix", base, *extra)
     for m in [*POLICY_SETS, *(f"seeds/{m}" for m in SEED_POLICY_SETS)]:

@@ -565,7 +565,23 @@ def table_steps() -> list[Step]:
     steps += [_pair(hw, "hardware_repetitive", f"{on}/hardware_repetitive_vs_hardware.md"),
               _oracle_table(f"{on}/hardware_repetitive_with_oracle.md", "hardware_repetitive",
                             "ilc_hardware_repetitive")]
-    for study in ("kept", "late100"):  # the headline's and the hardware model's five seeds
+    # the strongest classical rival with the same knowledge: the model-based feedforward with
+    # its own lap-to-lap correction (tuning_feedforward.md)
+    steps += [_pair("feedforward", "feedforward_repetitive",
+                    f"{on}/feedforward_repetitive_vs_feedforward.md"),
+              _pair("analytic_repetitive", "feedforward_repetitive",
+                    f"{on}/feedforward_repetitive_vs_analytic_repetitive.md")]
+    for study in ("kept", "late100", "residual"):  # the headline's, the hardware model's and
+        # the learned residual's (on the feedforward) five seeds against that rival
+        sets = [("feedforward_repetitive", f"{study}_s{k}_repetitive") for k in range(1, 6)]
+        steps.append(Step((f"{on}/{study}_repetitive_vs_feedforward_repetitive.md",),
+                          ("studies/online_correction.py", "summary", "--pairs",
+                           *(f"{x}:{y}" for x, y in sets), "--names",
+                           "feedforward + correction", "learned lead + correction"),
+                          tuple(dict.fromkeys(f"rollouts/{x}" for pair in sets for x in pair)),
+                          stdout=True, section="all"))
+    for study in ("kept", "late100", "residual"):  # the headline's, the hardware model's and
+        # the feedforward residual's five seeds, each with and without its correction
         seeds = [f"{study}_s{k}" for k in range(1, 6)]
         steps.append(Step((f"{on}/{study}_repetitive.md",),
                           ("studies/online_correction.py", "summary", "--pairs",

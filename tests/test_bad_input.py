@@ -294,6 +294,11 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
      ["must be finite and >= 0"]),
     ("studies/online_correction.py", ["summary", "--pairs", "a:b", "--names", " ", "x"],
      ["--names needs two non-empty names"]),
+    ("studies/online_correction.py", ["play", "--base", "feedforward", "--model",
+                                      "archive/x.zip", "--prefix", "x"],
+     ["--model is for --base policy", "feedforward"]),
+    ("studies/online_correction.py", ["play", "--base", "feedforward", "--oracle", "--prefix",
+                                      "x"], ["--oracle", "feedforward base has none"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the

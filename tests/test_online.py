@@ -4,6 +4,7 @@ tracks circles closer on the real arm, and that a rollout set records which one 
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 from panda_lead.online import OnlineCorrection, wrap
 
 DT, MAX_LEAD = 0.01, 0.1
+ROOT = Path(__file__).resolve().parent.parent
 
 
 class StubTask:
@@ -121,6 +123,38 @@ def test_a_rollout_set_records_its_correction_and_names_it():
     assert controller_label(rollouts, "x") == "RL+Lead + repetitive"
     looped = {0: SimpleNamespace(meta={**base, "env": {"repetitive_gain": 0.3}})}
     assert controller_label(looped, "x") == "RL+Lead + repetitive in the loop"
+
+
+def test_the_feedforward_base_is_the_rival_and_its_correction_acts_on_it():
+    """online_correction.py --base feedforward: a zero lead on the feedforward env (the rival,
+    tests/test_rivals.py), labelled as knowing the path; its lap-to-lap correction at gain 0
+    is the rival bit for bit, and at its tuned setting it settles closer on circles."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from online_correction import Args, _base
+
+    from panda_lead.metrics.pairing import controller_label
+    from panda_lead.rollout import record_many
+
+    ctrl = _base(Args(command="play", base="feedforward"))
+    assert ctrl.config.feedforward and ctrl.config.action == "lead"
+    assert ctrl.meta["controller"] == "feedforward" and ctrl.meta["knows_path"]
+    rollouts = {0: SimpleNamespace(meta={**ctrl.meta, "online": {"kind": "repetitive"}})}
+    assert controller_label(rollouts, "x") == "Feedforward + repetitive"
+    config = ctrl.config.replace(episode_steps=300)
+    seeds = [800_000, 800_001, 800_002]
+    circles = ["circle"] * len(seeds)
+    alone = record_many(config, ctrl.act, seeds, shapes=circles)
+    off = record_many(config, wrap(ctrl.act, OnlineCorrection("repetitive", 0.0, 12, 5)), seeds,
+                      shapes=circles)
+    tuned = record_many(config, wrap(ctrl.act, OnlineCorrection("repetitive", 0.3, 12, 5)),
+                        seeds, shapes=circles)
+    for a, b in zip(alone, off, strict=True):
+        np.testing.assert_array_equal(a.ee_pos, b.ee_pos)
+    settled = {name: np.mean([r.error[r.t >= 0.5].mean() for r in rs])
+               for name, rs in (("alone", alone), ("tuned", tuned))}
+    assert settled["tuned"] < 0.9 * settled["alone"]
 
 
 def test_bad_settings_are_refused():

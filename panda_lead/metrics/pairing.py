@@ -18,7 +18,8 @@ from ..rollout import Rollout
 from .stats import Row, peak_speed, rollout_metrics, summarize
 
 # Display names for the usual prefixes (--headline without --labels).
-CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead"}
+CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead",
+                     "feedforward": "Feedforward", "future_target": "Future target"}
 
 
 DEFAULT_LABELS = {"ikpd": "Classical", "analytic": "Analytic", "eval": "RL+Lead"}
