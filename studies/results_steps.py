@@ -571,17 +571,18 @@ def table_steps() -> list[Step]:
                     f"{on}/feedforward_repetitive_vs_feedforward.md"),
               _pair("analytic_repetitive", "feedforward_repetitive",
                     f"{on}/feedforward_repetitive_vs_analytic_repetitive.md")]
-    for study in ("kept", "late100", "residual"):  # the headline's, the hardware model's and
-        # the learned residual's (on the feedforward) five seeds against that rival
+    for study, name in (("kept", "learned lead + correction"),  # the headline's five seeds,
+                        ("late100", "hardware lead + correction"),  # the hardware model's,
+                        ("residual", "learned residual on it + correction")):  # and on the rival
         sets = [("feedforward_repetitive", f"{study}_s{k}_repetitive") for k in range(1, 6)]
         steps.append(Step((f"{on}/{study}_repetitive_vs_feedforward_repetitive.md",),
                           ("studies/online_correction.py", "summary", "--pairs",
                            *(f"{x}:{y}" for x, y in sets), "--names",
-                           "feedforward + correction", "learned lead + correction"),
+                           "feedforward + correction", name),
                           tuple(dict.fromkeys(f"rollouts/{x}" for pair in sets for x in pair)),
                           stdout=True, section="all"))
-    for study in ("kept", "late100", "residual"):  # the headline's, the hardware model's and
-        # the feedforward residual's five seeds, each with and without its correction
+    for study in ("kept", "late100", "residual"):  # the same five-seed studies, each with
+        # and without its correction
         seeds = [f"{study}_s{k}" for k in range(1, 6)]
         steps.append(Step((f"{on}/{study}_repetitive.md",),
                           ("studies/online_correction.py", "summary", "--pairs",
