@@ -570,7 +570,10 @@ def table_steps() -> list[Step]:
     steps += [_pair("feedforward", "feedforward_repetitive",
                     f"{on}/feedforward_repetitive_vs_feedforward.md"),
               _pair("analytic_repetitive", "feedforward_repetitive",
-                    f"{on}/feedforward_repetitive_vs_analytic_repetitive.md")]
+                    f"{on}/feedforward_repetitive_vs_analytic_repetitive.md"),
+              *(_pair("feedforward_repetitive", f"{lead}_repetitive",
+                      f"{on}/{lead}_repetitive_vs_feedforward_repetitive.md")
+                for lead in ("headline", "hardware"))]  # the archived models, by shape
     for study, name in (("kept", "learned lead + correction"),  # the headline's five seeds,
                         ("late100", "hardware lead + correction"),  # the hardware model's,
                         ("residual", "learned residual on it + correction")):  # and on the rival
