@@ -17,8 +17,9 @@ is labelled as knowing the planned path). ``summary`` reads pairs of rollout set
 seed's model alone and with the correction, the same test seeds) and prints each seed's mean
 and settled error, the study's mean over seeds, and corrected minus alone with a two-level
 bootstrap CI (trajectories and training seeds resampled, the two sides' seeds independently:
-a conservative CI for seeds that are in fact paired); failed episodes charged as metrics.py
-charges them.
+a conservative CI for seeds that are in fact paired; --paired-seeds adds the CI with the seeds
+drawn once for both sides, for pairs that share their training seed's model); failed episodes
+charged as metrics.py charges them.
 """
 
 from __future__ import annotations
@@ -78,6 +79,10 @@ class Args:
     """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
     bootstrap: int = 10000
     """summary: resamples of the two-level bootstrap."""
+    paired_seeds: bool = False
+    """summary: each pair's two sets come from one training seed's model (one model with and
+    without the correction, or two continuations of one model): print a seed-paired CI (the
+    seeds drawn once for both sides) beside the conservative one."""
     names: tuple[str, str] = ("plain", "with the correction")
     """summary: what the two sides of each pair are, for the table (e.g. "added after
     training" "trained with it")."""
@@ -217,7 +222,8 @@ def summary(args: Args) -> None:
         raise UserError("the pairs' rollout sets share no trajectory seed")
     a_name, b_name = args.names
     named = "" if args.names == Args.names else " --names " + shlex.join(args.names)
-    print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}{named}`: "
+    flags = named + (" --paired-seeds" if args.paired_seeds else "")
+    print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}{flags}`: "
           f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from 0.5 s; "
           + ("the corrected minus the plain set" if not named else f"{b_name} minus {a_name}")
           + ".\n")
@@ -240,10 +246,15 @@ def summary(args: Args) -> None:
         per_seed = [x.mean(axis=1) for x in (plain, corrected)]
         ci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, rng)
         diff = corrected.mean() - plain.mean()
+        paired = ""
+        if args.paired_seeds:
+            pci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, rng, paired=True)
+            paired = (f"; seed-paired [{pci[0]:+.3f}, {pci[1]:+.3f}] "
+                      f"{'shown' if shown(pci) else 'not shown'}")
         print(f"- {label}: {a_name} {per_seed[0].mean():.3f} +- {per_seed[0].std(ddof=1):.3f}, "
               f"{b_name} {per_seed[1].mean():.3f} +- {per_seed[1].std(ddof=1):.3f} (mean "
               f"+- std over the {len(sets)} seeds); diff {diff:+.3f} [{ci[0]:+.3f}, "
-              f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}")
+              f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}{paired}")
 
 
 def main() -> None:

@@ -589,7 +589,7 @@ def table_steps() -> list[Step]:
         seeds = [f"{study}_s{k}" for k in range(1, 6)]
         steps.append(Step((f"{on}/{study}_repetitive.md",),
                           ("studies/online_correction.py", "summary", "--pairs",
-                           *(f"{p}:{p}_repetitive" for p in seeds)),
+                           *(f"{p}:{p}_repetitive" for p in seeds), "--paired-seeds"),
                           tuple(f"rollouts/{p}{x}" for p in seeds for x in ("", "_repetitive")),
                           stdout=True, section="all"))
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
@@ -613,11 +613,15 @@ def table_steps() -> list[Step]:
              "looped_finetuned_vs_looped": ("looped_s{k}", "looped_ft_s{k}",
                                             "trained with it from scratch",
                                             "trained on with it")}
+    # the pairs whose two sides grew from one model (the headline study's seed k): their CIs
+    # may draw the seeds once for both sides as well (--paired-seeds)
+    shared_origin = ("looped_finetuned_vs_added", "looped_finetuned_vs_control_added")
     for name, (side_a, side_b, a_name, b_name) in pairs.items():
         sets = [(side_a.format(k=k), side_b.format(k=k)) for k in range(1, 6)]
+        paired = ("--paired-seeds",) if name in shared_origin else ()
         steps.append(Step((f"{on}/{name}.md",),
                           ("studies/online_correction.py", "summary", "--pairs",
-                           *(f"{x}:{y}" for x, y in sets), "--names", a_name, b_name),
+                           *(f"{x}:{y}" for x, y in sets), "--names", a_name, b_name, *paired),
                           tuple(f"rollouts/{x}" for pair in sets for x in pair),
                           stdout=True, section="all"))
     looped_obs = "v5_err_decay_repetitive_observed_5m"

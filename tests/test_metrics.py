@@ -738,3 +738,21 @@ def test_t_ci_is_students_interval_of_the_mean():
     expected = sps.t.interval(0.95, len(values) - 1, loc=values.mean(), scale=sps.sem(values))
     assert np.allclose(t_ci(values), expected)
     assert all(np.isnan(t_ci([2.5])))  # one seed has no interval
+
+
+def test_the_two_level_bootstrap_carries_the_seeds_spread_and_pairs_seeds_when_told():
+    """Five training seeds whose levels differ by 1 cm, each improved by exactly 0.1 cm: drawn
+    independently the seeds' spread hides the gain; drawn once for both sides (the same
+    models with and without something added) only the gain is left."""
+    from panda_lead.metrics.stats import shown, two_level_bootstrap
+
+    rng = np.random.default_rng(0)
+    level = np.arange(5.0)[:, None]
+    a = level + rng.normal(0.0, 0.05, (5, 400))
+    b = a - 0.1
+    independent, _ = two_level_bootstrap(a, b, 2000, np.random.default_rng(1))
+    paired, _ = two_level_bootstrap(a, b, 2000, np.random.default_rng(1), paired=True)
+    assert not shown(independent) and independent[1] - independent[0] > 1.0
+    assert paired == pytest.approx((-0.1, -0.1), abs=1e-9)
+    with pytest.raises(ValueError, match="as many seeds"):
+        two_level_bootstrap(a, b[:4], 10, rng, paired=True)

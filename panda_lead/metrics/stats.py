@@ -129,20 +129,25 @@ def paired_ci(deltas, n_boot: int = 10000, seed: int = 0) -> tuple[float, float]
     return bootstrap_ci(deltas, np.mean, n_boot, seed)
 
 
-def two_level_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int,
-                        rng: np.random.Generator) -> tuple[tuple[float, float], np.ndarray]:
+def two_level_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int, rng: np.random.Generator,
+                        paired: bool = False) -> tuple[tuple[float, float], np.ndarray]:
     """95% CI and resamples of mean(b) - mean(a) for two studies, each (training seeds,
     trajectories) on the same trajectories in the same order. Each resample draws the
     trajectories and both studies' training seeds with replacement, so the CI carries the
     spread across training seeds as well as across trajectories: one over trajectories alone
     would call a lucky seed a finding. (A study of one seed, such as a classical controller,
-    resamples its trajectories alone.)"""
+    resamples its trajectories alone.) With ``paired`` the k-th seed of one study is the k-th
+    of the other (one model with and without something added, or two continuations of one
+    model): the seeds are drawn once for both, which keeps what the pair shares out of the CI."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if paired and len(a) != len(b):
+        raise ValueError(f"paired studies need as many seeds on each side: {len(a)}, {len(b)}")
     n = a.shape[1]
     boots = np.empty(n_boot)
     for i in range(n_boot):
         t = rng.integers(0, n, n)
-        sa, sb = rng.integers(0, len(a), len(a)), rng.integers(0, len(b), len(b))
+        sa = rng.integers(0, len(a), len(a))
+        sb = sa if paired else rng.integers(0, len(b), len(b))
         boots[i] = b[sb][:, t].mean() - a[sa][:, t].mean()
     lo, hi = np.percentile(boots, [2.5, 97.5])
     return (float(lo), float(hi)), boots
