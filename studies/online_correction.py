@@ -240,6 +240,7 @@ def summary(args: Args) -> None:
               f"{m['settled_err'][1] - m['settled_err'][0]:+.3f} |")
     print()
     rng = np.random.default_rng(0)
+    paired_rng = np.random.default_rng(1)  # its own stream: the conservative CIs stay as they were
     for k, label in (("mean_err", "mean error (cm)"), ("settled_err", "settled error (cm)"),
                      ("jerk_rms", "tip jerk RMS (m/s^3)")):
         plain, corrected = (np.array(x) for x in arrays[k])
@@ -248,7 +249,8 @@ def summary(args: Args) -> None:
         diff = corrected.mean() - plain.mean()
         paired = ""
         if args.paired_seeds:
-            pci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, rng, paired=True)
+            pci, _ = two_level_bootstrap(plain, corrected, args.bootstrap, paired_rng,
+                                         paired=True)
             paired = (f"; seed-paired [{pci[0]:+.3f}, {pci[1]:+.3f}] "
                       f"{'shown' if shown(pci) else 'not shown'}")
         print(f"- {label}: {a_name} {per_seed[0].mean():.3f} +- {per_seed[0].std(ddof=1):.3f}, "
