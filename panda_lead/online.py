@@ -14,8 +14,15 @@ its lead, learned within the episode from the tip's tracking error e = target - 
   a preview controller.
 
 Both are settings, never trained: studies/online_correction.py tunes them on the tuning seeds.
-They read the true tip and target, so they run only where there is no noise or latency (a
-measured, delayed error would need its own filter and prediction; not built).
+They read the tip's error without noise, so they run only where there is none. Played on a lead
+under latency (the lead's channel ``obs_delay`` steps late in and ``action_delay`` out, fixed
+and known: studies/deploy.py's "latency k"), a correction runs where the lead runs: at step s
+it knows the errors up to s - obs_delay, and what it returns acts at s + action_delay, so it
+computes the correction for s + action_delay from the errors it has (a lap ago is long past:
+the shortest lap is 29 steps). A late target camera (target_delay) is refused: the error it
+reads is then not the tip's (a measured, noisy or camera-delayed error would need its own
+filter and prediction; not built). The in-loop correction (EnvConfig.repetitive_gain) runs in
+the world without latency only.
 """
 
 from __future__ import annotations
@@ -67,7 +74,9 @@ class Corrector:
         error = pos - task.core.tip_pos
         n, dt = len(error), task.dt
         steps = np.rint(np.asarray(task.core.time) / dt).astype(int)  # this step's index
-        horizon = task.config.episode_steps + 1
+        # latency (module docstring): the errors known reach s - seen, the result acts at s + out
+        seen, out = task.config.obs_delay, task.config.action_delay
+        horizon = task.config.episode_steps + 1 + out
         if state.get("n") != n:
             state.update(n=n, c=np.zeros((n, horizon, 3)), e=np.zeros((n, horizon, 3)),
                          integral=np.zeros((n, 3)), lap=np.ones(n))
@@ -77,24 +86,26 @@ class Corrector:
             state["lap"][fresh] = [task.trajs[i].params["lap_time"] / dt
                                    for i in np.flatnonzero(fresh)]
         rows = np.arange(n)
-        state["e"][rows, steps] = error
+        state["e"][rows, steps] = error  # the truth, read only once it is ``seen`` steps old
+        known, acts = steps - seen, steps + out
         if correction.kind == "integral":
-            on = (steps * dt >= correction.start)[:, None]
-            state["integral"] += np.where(on, error * dt, 0.0)
+            on = (known * dt >= correction.start) & (known >= 0)
+            late = state["e"][rows, np.maximum(known, 0)]
+            state["integral"] += np.where(on[:, None], late * dt, 0.0)
             c = correction.gain * state["integral"]
         else:
             lap = state["lap"]
             c = np.zeros((n, 3))
             shifts = range(-correction.smooth, correction.smooth + 1)
             for j in shifts:  # Q: the mean over the window
-                c_then, has_c = _at(state["c"], steps - lap + j, steps)
-                src = steps - lap + correction.advance + j
-                e_then, has_e = _at(state["e"], src, steps)
+                c_then, has_c = _at(state["c"], acts - lap + j, acts - 1)
+                src = acts - lap + correction.advance + j
+                e_then, has_e = _at(state["e"], src, known)
                 learn = has_e & (src * dt >= correction.start)
                 c += np.where(has_c[:, None], c_then, 0.0) + np.where(
                     learn[:, None], correction.gain * e_then, 0.0)
             c /= len(shifts)
-        state["c"][rows, steps] = c
+        state["c"][rows, acts] = c
         return c
 
 
@@ -106,12 +117,16 @@ def corrected_action(action: np.ndarray, c: np.ndarray, max_lead: float) -> np.n
 
 
 def check_world(cfg) -> None:
-    """Refuse an env an online correction cannot run in (it reads the true tip and target)."""
+    """Refuse an env an online correction cannot run in: it reads the tip's error without
+    noise, through a fixed, known latency at most (module docstring)."""
     if cfg.action != "lead":
         raise ValueError("an online correction adds to a Cartesian lead: action 'lead'")
-    if any(cfg.obs_noise.values()) or cfg.obs_delay or cfg.action_delay or cfg.target_delay:
-        raise ValueError("an online correction reads the true tip and target: it is built "
-                         "for the world without noise or latency")
+    if any(cfg.obs_noise.values()) or cfg.target_delay:
+        raise ValueError("an online correction reads the tip's error without noise: it is "
+                         "built for the world without noise or a late target camera")
+    if (cfg.obs_delay or cfg.action_delay) and cfg.random_delay:
+        raise ValueError("an online correction runs through a fixed, known latency: not one "
+                         "drawn per episode (random_delay)")
 
 
 def wrap(act, correction: OnlineCorrection):

@@ -38,6 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # studies/preview_riva
 
 from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
+MAX_LATENCY = 10  # control steps: a lap is 29 or more, and the correction needs a lap's past
+
 
 @dataclass
 class Args:
@@ -58,6 +60,9 @@ class Args:
     """tune: the repetitive correction's phase lead (control steps)."""
     smooths: tuple[int, ...] = (0, 3)
     """tune: the repetitive correction's low-pass half-width (control steps)."""
+    latency: int = 0
+    """tune and play: the lead's channel this many control steps late both ways, fixed
+    (studies/deploy.py's "latency k"; the correction runs where the lead runs, online.py)."""
     kind: Literal["integral", "repetitive"] = "repetitive"
     """play: which correction."""
     gain: float = 0.3
@@ -98,13 +103,17 @@ def _base(args: Args):
     steps = int(round(5.0 / control_dt()))
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
+    if not 0 <= args.latency <= MAX_LATENCY:
+        raise UserError(f"--latency is whole control steps in 0..{MAX_LATENCY}, got {args.latency}")
+    late = ({"obs_delay": args.latency, "action_delay": args.latency, "random_delay": False}
+            if args.latency else None)
     if args.base == "analytic":
-        return harness.build("analytic", steps)
+        return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
-        ctrl = harness.build("classical", steps)
+        ctrl = harness.build("classical", steps, overrides=late)
         meta = {**ctrl.meta, "controller": "feedforward", "knows_path": True}
         return replace(ctrl, config=ctrl.config.replace(feedforward=True), meta=meta)
-    return harness.build("policy", steps, model=args.model)
+    return harness.build("policy", steps, model=args.model, overrides=late)
 
 
 def _oracle(args: Args, correction):
@@ -136,6 +145,7 @@ def tune(args: Args) -> None:
     lead = ctrl.meta.get("model") or {"analytic": "the analytic lead",
                                       "feedforward": "the feedforward rival"}[args.base]
     given = f" --model {args.model}" if args.model is not None else ""
+    given += f" --latency {args.latency}" if args.latency else ""
     grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
                          for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
                          if getattr(args, name) != getattr(Args, name))
@@ -184,6 +194,8 @@ def play(args: Args) -> None:
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
+        if args.latency:
+            raise UserError("--oracle replays in the world without latency: drop --latency")
         if args.base == "feedforward":
             raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
                             "env; the feedforward base has none (its oracle is not built)")

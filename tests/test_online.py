@@ -23,7 +23,7 @@ class StubTask:
         self.dt = DT
         self.config = SimpleNamespace(action="lead", episode_steps=len(errors), max_lead=MAX_LEAD,
                                       obs_noise={}, obs_delay=0, action_delay=0, target_delay=0,
-                                      repetitive_gain=0.0)
+                                      random_delay=False, repetitive_gain=0.0)
         self.trajs = [SimpleNamespace(params={"lap_time": lap}) for lap in laps]
         self.errors, self.k = errors, 0  # errors: (steps, n, 3)
         n = len(laps)
@@ -112,6 +112,25 @@ def test_the_lap_to_lap_correction_tracks_circles_closer_than_the_lead_alone():
     assert settled["repetitive"] < 0.9 * settled["alone"]
 
 
+def test_under_3_steps_of_latency_the_correction_still_tracks_circles_closer():
+    """The deploy table's "latency 3" (the lead's channel 30 ms late both ways) on the real
+    arm: the analytic lead with the correction, computed for when it acts, settles closer
+    than the analytic lead alone under the same latency."""
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig
+    from panda_lead.rollout import record_many
+
+    config = EnvConfig(episode_steps=500, obs_delay=3, action_delay=3, random_delay=False)
+    seeds = list(range(800_000, 800_008))
+    act = controllers.make_analytic()
+    settled = {}
+    for name, a in (("alone", act),
+                    ("repetitive", wrap(act, OnlineCorrection("repetitive", 0.3, 10)))):
+        rs = record_many(config, a, seeds, shapes=["circle"] * len(seeds))
+        settled[name] = np.mean([r.error[r.t >= 0.5].mean() for r in rs])
+    assert settled["repetitive"] < 0.9 * settled["alone"]
+
+
 def test_a_rollout_set_records_its_correction_and_names_it():
     from panda_lead.metrics.pairing import controller_label
     from panda_lead.rollout import identity
@@ -164,15 +183,43 @@ def test_bad_settings_are_refused():
             OnlineCorrection(**bad)
 
 
-def test_a_correction_refuses_a_world_with_noise_or_latency():
-    """It reads the true tip and target; under noise or latency that would be a cheat."""
-    for cfg in ({"obs_noise": {"target_pos": 0.01}}, {"obs_delay": 1}, {"target_delay": 1}):
+def test_a_correction_refuses_a_world_with_noise_a_late_camera_or_a_drawn_latency():
+    """It reads the tip's error without noise; a late target camera's error is not the tip's;
+    a latency drawn per episode is not one it can plan for."""
+    for cfg, words in (({"obs_noise": {"target_pos": 0.01}}, "without noise"),
+                       ({"target_delay": 1}, "late target camera"),
+                       ({"obs_delay": 1, "action_delay": 1, "random_delay": True},
+                        "fixed, known latency")):
         task = StubTask([1.0], np.zeros((3, 1, 3)))
-        task.config = SimpleNamespace(action="lead", episode_steps=3, max_lead=MAX_LEAD,
-                                      **{"obs_noise": {}, "obs_delay": 0, "action_delay": 0,
-                                         "target_delay": 0, **cfg})
-        with pytest.raises(ValueError, match="without noise or latency"):
+        task.config = SimpleNamespace(**{**vars(task.config), **cfg})
+        with pytest.raises(ValueError, match=words):
             task.play(wrap(zero_lead, OnlineCorrection("integral", 1.0)))
+
+
+def test_under_latency_the_correction_is_computed_for_when_it_acts_from_what_is_known():
+    """Latency 2 steps each way, lap 6, advance 1: at step k the lead computer knows the errors
+    up to k - 2 and its output acts at k + 2, so it returns C(k + 2) with
+    C(i) = C(i - 6) + 0.5 e(i - 5); with an advance that would need errors not yet seen
+    (src > k - 2) it learns nothing."""
+    steps, lap, gain, late = 40, 6, 0.5, 2
+    e = np.random.default_rng(1).normal(0, 0.01, (steps, 1, 3))
+
+    def played(advance):
+        task = StubTask([lap * DT], e)
+        task.config = SimpleNamespace(**{**vars(task.config), "obs_delay": late,
+                                         "action_delay": late})
+        correction = OnlineCorrection("repetitive", gain, advance, start=0.0)
+        return task.play(wrap(zero_lead, correction))
+
+    big = np.zeros((steps + late, 3))
+    for i in range(steps + late):
+        if i - lap >= 0:
+            big[i] = big[i - lap]
+        if i - lap + 1 >= 0:
+            big[i] += gain * e[i - lap + 1, 0]
+    np.testing.assert_allclose(played(1)[:, 0], np.clip(big[late:], -MAX_LEAD, MAX_LEAD),
+                               atol=1e-7)
+    assert not played(lap - 2 * late + 1).any()
 
 
 def test_the_env_runs_the_same_law_as_a_played_correction_bit_for_bit():
