@@ -191,9 +191,25 @@ ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           # correction) with the correction added after training: the like-for-like pair
           **{f"finetuned_s{k}_repetitive": ("policy", f"seeds/v5_err_decay_finetuned_5m_s{k}",
                                             *ONLINE_REPETITIVE) for k in range(1, 6)}}
+# ... and through a fixed latency of d control steps each way (studies/deploy.py's "latency
+# d"; the correction computed for when it acts): the hardware study's five seeds alone and with
+# their correction, and the feedforward rival's correction (its plain pair is `feedforward`:
+# the latency delays only the lead's channel, where the rival has nothing)
+LATENCIES = (1, 3)
+LATE_PLAIN = {f"late100_s{k}_delay{d}": (f"seeds/{LATE100}_s{k}", d)
+              for d in LATENCIES for k in range(1, 6)}
+LATE_ONLINE = {**{f"late100_s{k}_repetitive_delay{d}": (ONLINE[f"late100_s{k}_repetitive"], d)
+                  for d in LATENCIES for k in range(1, 6)},
+               **{f"feedforward_repetitive_delay{d}": (ONLINE["feedforward_repetitive"], d)
+                  for d in LATENCIES}}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
+
+
+def _late(d: int) -> list[str]:
+    return ["--env.obs-delay", str(d), "--env.action-delay", str(d), "--env.random-delay",
+            "False"]
 
 
 def _play_online(root: Path, spec: tuple, seeds: str, prefix: str, *extra: str) -> None:
@@ -219,12 +235,21 @@ def _online_sets(root: Path) -> None:
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", "--force")
-    for prefix, spec in ONLINE.items():
+    for prefix, (model, d) in LATE_PLAIN.items():
+        want = _archived_sha(root, model)
+        delay = (_first_meta(root, prefix).get("env") or {}).get("obs_delay")
+        if want and (_set_model(root, prefix) != want or delay != d):
+            _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
+                 f"archive/{model}.zip", *_late(d), "--force")
+    late = LATE_ONLINE
+    for prefix, spec in {**ONLINE, **{p: spec for p, (spec, _) in late.items()}}.items():
         meta, model = _first_meta(root, prefix), spec[1]
         setting = meta.get("online") or {}
+        d = late[prefix][1] if prefix in late else 0
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or (model and meta.get("model_sha256") != _archived_sha(root, model))):
-            _play_online(root, spec, "0-999", prefix)
+                or (model and meta.get("model_sha256") != _archived_sha(root, model))
+                or (meta.get("env") or {}).get("obs_delay", 0) != d):
+            _play_online(root, spec, "0-999", prefix, *(["--latency", str(d)] if d else []))
     for prefix, start in ONLINE_ORACLES.items():
         spec, ilc = ONLINE[start], _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}
