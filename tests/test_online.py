@@ -112,6 +112,28 @@ def test_the_lap_to_lap_correction_tracks_circles_closer_than_the_lead_alone():
     assert settled["repetitive"] < 0.9 * settled["alone"]
 
 
+def test_on_a_zero_lead_latency_changes_nothing_the_correction_is_computed_for_when_it_acts():
+    """The latency arithmetic on the real arm: on the classical controller (a zero lead, so the
+    late channel carries only the correction) a lap-to-lap correction computed for when it acts
+    from the errors known then moves the arm bit for bit as it does without latency (every error
+    it needs is a lap old); the feedforward rival's rollouts at 1 and 3 steps showed the same."""
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig
+    from panda_lead.rollout import record_many
+
+    seeds, circles = [800_000, 800_001], ["circle", "circle"]
+    correction = OnlineCorrection("repetitive", 0.5, 10, 3)
+    runs = [record_many(EnvConfig(episode_steps=250, obs_delay=d, action_delay=d,
+                                  random_delay=False),
+                        wrap(controllers.classical, correction), seeds, shapes=circles)
+            for d in (0, 3)]
+    for a, b in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a.ee_pos, b.ee_pos)
+    alone = record_many(EnvConfig(episode_steps=250), controllers.classical, seeds,
+                        shapes=circles)
+    assert any(np.abs(a.ee_pos - b.ee_pos).max() > 1e-3 for a, b in zip(alone, runs[0]))
+
+
 def test_under_3_steps_of_latency_the_correction_still_tracks_circles_closer():
     """The deploy table's "latency 3" (the lead's channel 30 ms late both ways) on the real
     arm: the analytic lead with the correction, computed for when it acts, settles closer
