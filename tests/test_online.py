@@ -131,7 +131,8 @@ def test_on_a_zero_lead_latency_changes_nothing_the_correction_is_computed_for_w
         np.testing.assert_array_equal(a.ee_pos, b.ee_pos)
     alone = record_many(EnvConfig(episode_steps=250), controllers.classical, seeds,
                         shapes=circles)
-    assert any(np.abs(a.ee_pos - b.ee_pos).max() > 1e-3 for a, b in zip(alone, runs[0]))
+    assert any(np.abs(a.ee_pos - b.ee_pos).max() > 1e-3 for a, b in
+               zip(alone, runs[0], strict=True))
 
 
 def test_under_3_steps_of_latency_the_correction_still_tracks_circles_closer():
