@@ -14,15 +14,17 @@ its lead, learned within the episode from the tip's tracking error e = target - 
   a preview controller.
 
 Both are settings, never trained: studies/online_correction.py tunes them on the tuning seeds.
-They read the tip's error without noise, so they run only where there is none. Played on a lead
+Under observation noise a played correction reads the measured error, the target reading minus
+the tip reading, with the very draws the lead's observation carries (LeadTask.error_reading_noise);
+its low-pass Q and the lap-to-lap gain are then its filter. Played on a lead
 under latency (the lead's channel ``obs_delay`` steps late in and ``action_delay`` out, fixed
 and known: studies/deploy.py's "latency k"), a correction runs where the lead runs: at step s
 it knows the errors up to s - obs_delay, and what it returns acts at s + action_delay, so it
 computes the correction for s + action_delay from the errors it has (a lap ago is long past:
 the shortest lap is 29 steps). A late target camera (target_delay) is refused: the error it
-reads is then not the tip's (a measured, noisy or camera-delayed error would need its own
-filter and prediction; not built). The in-loop correction (EnvConfig.repetitive_gain) runs in
-the world without latency only.
+reads is then not the tip's (it would need a prediction through the camera's delay; not
+built). The in-loop correction (EnvConfig.repetitive_gain) runs in the world without latency
+or noise only.
 """
 
 from __future__ import annotations
@@ -71,7 +73,7 @@ class Corrector:
     def __call__(self, task) -> np.ndarray:
         correction, state = self.correction, self.state
         pos = task.core.target()[0]
-        error = pos - task.core.tip_pos
+        error = pos - task.core.tip_pos + task.error_reading_noise()  # measured, noise and all
         n, dt = len(error), task.dt
         steps = np.rint(np.asarray(task.core.time) / dt).astype(int)  # this step's index
         # latency (module docstring): the errors known reach s - seen, the result acts at s + out
@@ -117,13 +119,13 @@ def corrected_action(action: np.ndarray, c: np.ndarray, max_lead: float) -> np.n
 
 
 def check_world(cfg) -> None:
-    """Refuse an env an online correction cannot run in: it reads the tip's error without
-    noise, through a fixed, known latency at most (module docstring)."""
+    """Refuse an env an online correction cannot run in: it reads the tip's measured error
+    through a fixed, known latency at most, and no late target camera (module docstring)."""
     if cfg.action != "lead":
         raise ValueError("an online correction adds to a Cartesian lead: action 'lead'")
-    if any(cfg.obs_noise.values()) or cfg.target_delay:
-        raise ValueError("an online correction reads the tip's error without noise: it is "
-                         "built for the world without noise or a late target camera")
+    if cfg.target_delay:
+        raise ValueError("an online correction reads the tip's error: with a late target "
+                         "camera it would read a stale one (not built)")
     if (cfg.obs_delay or cfg.action_delay) and cfg.random_delay:
         raise ValueError("an online correction runs through a fixed, known latency: not one "
                          "drawn per episode (random_delay)")

@@ -186,6 +186,20 @@ class LeadTask:
         tip, target = self._reading_cols
         return self._noise[:, tip] - self._noise[:, target]
 
+    def error_reading_noise(self) -> np.ndarray | float:
+        """(N, 3) the noise of the latest measured tip error target - tip (the target reading's
+        draw minus the tip reading's; the same draws the observation carries), 0.0 without
+        noise on either reading. What an online correction reads under noise (online.py)."""
+        c = self.config
+        if not (c.obs_noise.get("ee_pos") or c.obs_noise.get("target_pos")):
+            return 0.0
+        drawn = set(self._noisy.tolist())
+        for f, cols in zip(("ee_pos", "target_pos"), self._reading_cols, strict=True):
+            if c.obs_noise.get(f) and not drawn.issuperset(cols.tolist()):
+                raise ValueError(f"the env draws no noise for the {f} reading (observe {f} or "
+                                 "tip_error): the measured error would be exact")
+        return -self._reading_noise()
+
     def set_speed_cap(self, cap: float | None) -> None:
         """Peak-speed cap (m/s) of the training trajectories drawn from now on (None: any)."""
         self.speed_cap = cap

@@ -34,11 +34,9 @@ from typing import Literal
 import numpy as np
 import tyro
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # studies/preview_rivals.py
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # preview_rivals.py, deploy.py
 
 from panda_lead.errors import UserError, exit_on_user_error, parse_cli
-
-MAX_LATENCY = 10  # control steps: a lap is 29 or more, and the correction needs a lap's past
 
 
 @dataclass
@@ -60,9 +58,12 @@ class Args:
     """tune: the repetitive correction's phase lead (control steps)."""
     smooths: tuple[int, ...] = (0, 3)
     """tune: the repetitive correction's low-pass half-width (control steps)."""
-    latency: int = 0
-    """tune and play: the lead's channel this many control steps late both ways, fixed
-    (studies/deploy.py's "latency k"; the correction runs where the lead runs, online.py)."""
+    condition: str = "none"
+    """tune and play: one of studies/deploy.py's conditions, applied to the lead and the
+    correction alike: none, delay1 and delay3 (the lead's channel 1 or 3 control steps late
+    both ways: the correction runs where the lead runs), noise1 and noise2 (every reading
+    noisy, the IK aiming at the target reading; the correction reads the measured error),
+    targetnoise1, targetnoise2 (online.py). The target camera (camera1, camera3) is refused."""
     kind: Literal["integral", "repetitive"] = "repetitive"
     """play: which correction."""
     gain: float = 0.3
@@ -93,6 +94,16 @@ class Args:
     training" "trained with it")."""
 
 
+def _condition(name: str) -> dict | None:
+    """The env overrides of one of studies/deploy.py's conditions (None: the ideal world)."""
+    from deploy import overrides  # the deploy table's own definitions
+
+    if name.startswith("camera"):
+        raise UserError(f"--condition {name}: an online correction reads the tip's error; with a "
+                        "late target camera it would read a stale one (not built)")
+    return overrides(name) or None
+
+
 def _base(args: Args):
     """The base controller on its evaluation env, 5 s episodes."""
     from dataclasses import replace
@@ -103,10 +114,7 @@ def _base(args: Args):
     steps = int(round(5.0 / control_dt()))
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
-    if not 0 <= args.latency <= MAX_LATENCY:
-        raise UserError(f"--latency is whole control steps in 0..{MAX_LATENCY}, got {args.latency}")
-    late = ({"obs_delay": args.latency, "action_delay": args.latency, "random_delay": False}
-            if args.latency else None)
+    late = _condition(args.condition)
     if args.base == "analytic":
         return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
@@ -145,7 +153,7 @@ def tune(args: Args) -> None:
     lead = ctrl.meta.get("model") or {"analytic": "the analytic lead",
                                       "feedforward": "the feedforward rival"}[args.base]
     given = f" --model {args.model}" if args.model is not None else ""
-    given += f" --latency {args.latency}" if args.latency else ""
+    given += f" --condition {args.condition}" if args.condition != "none" else ""
     grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
                          for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
                          if getattr(args, name) != getattr(Args, name))
@@ -194,8 +202,8 @@ def play(args: Args) -> None:
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
-        if args.latency:
-            raise UserError("--oracle replays in the world without latency: drop --latency")
+        if args.condition != "none":
+            raise UserError("--oracle replays in the ideal world: drop --condition")
         if args.base == "feedforward":
             raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
                             "env; the feedforward base has none (its oracle is not built)")

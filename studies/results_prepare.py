@@ -249,7 +249,7 @@ def _online_sets(root: Path) -> None:
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))
                 or (meta.get("env") or {}).get("obs_delay", 0) != d):
-            _play_online(root, spec, "0-999", prefix, *(["--latency", str(d)] if d else []))
+            _play_online(root, spec, "0-999", prefix, *(["--condition", f"delay{d}"] if d else []))
     for prefix, start in ONLINE_ORACLES.items():
         spec, ilc = ONLINE[start], _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}

@@ -299,10 +299,12 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
      ["--model is for --base policy", "feedforward"]),
     ("studies/online_correction.py", ["play", "--base", "feedforward", "--oracle", "--prefix",
                                       "x"], ["--oracle", "feedforward base has none"]),
-    ("studies/online_correction.py", ["play", "--base", "analytic", "--latency", "40",
-                                      "--prefix", "x"], ["--latency", "0..10", "40"]),
-    ("studies/online_correction.py", ["play", "--base", "analytic", "--latency", "1", "--oracle",
-                                      "--prefix", "x"], ["--oracle", "without latency"]),
+    ("studies/online_correction.py", ["play", "--base", "analytic", "--condition", "delay9x",
+                                      "--prefix", "x"], ["unknown condition", "delay9x"]),
+    ("studies/online_correction.py", ["play", "--base", "analytic", "--condition", "camera1",
+                                      "--prefix", "x"], ["camera1", "late target camera"]),
+    ("studies/online_correction.py", ["play", "--base", "analytic", "--condition", "delay1",
+                                      "--oracle", "--prefix", "x"], ["--oracle", "ideal world"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the

@@ -30,6 +30,9 @@ class StubTask:
         self.core = SimpleNamespace(time=np.zeros(n), tip_pos=np.zeros((n, 3)),
                                     target=lambda: (self.errors[self.k], None, None))
 
+    def error_reading_noise(self):
+        return 0.0
+
     def play(self, act) -> np.ndarray:
         """The lead (m) act adds at each step, (steps, n, 3)."""
         out = []
@@ -138,6 +141,33 @@ def test_on_a_zero_lead_latency_changes_nothing_the_correction_is_computed_for_w
                zip(alone, runs[0], strict=True))
 
 
+def test_under_noise_the_correction_reads_the_measured_error():
+    """Noise on the target's reading reaches nothing of the classical controller (its IK aims
+    at the true target) but what the correction reads: the arm moves alike without the
+    correction and apart with it; and an env that draws no noise for a noisy reading (neither
+    it nor tip_error observed) is refused rather than read exact."""
+    from panda_lead import controllers
+    from panda_lead.config import EnvConfig
+    from panda_lead.rollout import record_many
+
+    seeds, circles = [800_000, 800_001], ["circle", "circle"]
+    quiet, noisy = EnvConfig(episode_steps=250), EnvConfig(episode_steps=250,
+                                                            obs_noise={"target_pos": 0.01})
+    correction = OnlineCorrection("repetitive", 0.5, 10, 3)
+    for a, b in zip(record_many(quiet, controllers.classical, seeds, shapes=circles),
+                    record_many(noisy, controllers.classical, seeds, shapes=circles), strict=True):
+        np.testing.assert_array_equal(a.ee_pos, b.ee_pos)
+    apart = [np.abs(a.ee_pos - b.ee_pos).max() for a, b in zip(
+        record_many(quiet, wrap(controllers.classical, correction), seeds, shapes=circles),
+        record_many(noisy, wrap(controllers.classical, correction), seeds, shapes=circles),
+        strict=True)]
+    assert min(apart) > 1e-4
+    unread = EnvConfig(episode_steps=20, obs_features=("target_pos", "target_vel"),
+                       obs_noise={"ee_pos": 0.01})
+    with pytest.raises(ValueError, match="draws no noise for the ee_pos reading"):
+        record_many(unread, wrap(controllers.classical, correction), seeds[:1])
+
+
 def test_a_rollout_set_records_its_correction_and_names_it():
     from panda_lead.metrics.pairing import controller_label
     from panda_lead.rollout import identity
@@ -190,11 +220,10 @@ def test_bad_settings_are_refused():
             OnlineCorrection(**bad)
 
 
-def test_a_correction_refuses_a_world_with_noise_a_late_camera_or_a_drawn_latency():
-    """It reads the tip's error without noise; a late target camera's error is not the tip's;
-    a latency drawn per episode is not one it can plan for."""
-    for cfg, words in (({"obs_noise": {"target_pos": 0.01}}, "without noise"),
-                       ({"target_delay": 1}, "late target camera"),
+def test_a_correction_refuses_a_late_camera_or_a_drawn_latency():
+    """A late target camera's error is not the tip's; a latency drawn per episode is not one it
+    can plan for."""
+    for cfg, words in (({"target_delay": 1}, "late target camera"),
                        ({"obs_delay": 1, "action_delay": 1, "random_delay": True},
                         "fixed, known latency")):
         task = StubTask([1.0], np.zeros((3, 1, 3)))
