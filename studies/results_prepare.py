@@ -191,25 +191,47 @@ ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
           # correction) with the correction added after training: the like-for-like pair
           **{f"finetuned_s{k}_repetitive": ("policy", f"seeds/v5_err_decay_finetuned_5m_s{k}",
                                             *ONLINE_REPETITIVE) for k in range(1, 6)}}
-# ... and through a fixed latency of d control steps each way (studies/deploy.py's "latency
-# d"; the correction computed for when it acts): the hardware study's five seeds alone and with
-# their correction, and the feedforward rival's correction (its plain pair is `feedforward`:
-# the latency delays only the lead's channel, where the rival has nothing)
-LATENCIES = (1, 3)
-LATE_PLAIN = {f"late100_s{k}_delay{d}": (f"seeds/{LATE100}_s{k}", d)
-              for d in LATENCIES for k in range(1, 6)}
-LATE_ONLINE = {**{f"late100_s{k}_repetitive_delay{d}": (ONLINE[f"late100_s{k}_repetitive"], d)
-                  for d in LATENCIES for k in range(1, 6)},
-               **{f"feedforward_repetitive_delay{d}": (ONLINE["feedforward_repetitive"], d)
-                  for d in LATENCIES}}
+# ... and under studies/deploy.py's conditions (online_correction.py --condition): through a
+# fixed latency of d control steps each way (the correction computed for when it acts) and under
+# 1 cm of noise (it reads the measured error; its own setting, tuning_hardware_noise1.md): the
+# hardware study's five seeds alone and with their correction, and the feedforward rival's
+# correction through latency (its plain pair is `feedforward`: the latency delays only the
+# lead's channel, where the rival has nothing)
+ONLINE_NOISE1 = ("repetitive", 0.7, 10, 8)  # tuning_hardware_noise1.md
+CONDITION_PLAIN = {f"late100_s{k}_{c}": (f"seeds/{LATE100}_s{k}", c)
+                   for c in ("delay1", "delay3", "noise1") for k in range(1, 6)}
+CONDITION_ONLINE = {
+    **{f"late100_s{k}_repetitive_{c}": (ONLINE[f"late100_s{k}_repetitive"], c)
+       for c in ("delay1", "delay3") for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_noise1": (("policy", f"seeds/{LATE100}_s{k}", *ONLINE_NOISE1),
+                                           "noise1") for k in range(1, 6)},
+    **{f"feedforward_repetitive_{c}": (ONLINE["feedforward_repetitive"], c)
+       for c in ("delay1", "delay3")}}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
 
 
-def _late(d: int) -> list[str]:
-    return ["--env.obs-delay", str(d), "--env.action-delay", str(d), "--env.random-delay",
-            "False"]
+def _condition_flags(condition: str) -> list[str]:
+    """eval.py's --env flags for one of studies/deploy.py's conditions."""
+    from deploy import overrides
+
+    flags = []
+    for key, value in overrides(condition).items():
+        flags.append(f"--env.{key.replace('_', '-')}")
+        flags += ([x for k, v in value.items() for x in (k, str(v))] if isinstance(value, dict)
+                  else [str(value)])
+    return flags
+
+
+def _in_condition(meta: dict, condition: str) -> bool:
+    """Whether a set's first rollout was played under exactly this condition's settings (the
+    ideal world's "none": no delay, no noise)."""
+    from deploy import overrides
+
+    env = meta.get("env") or {}
+    want = overrides(condition) or {"obs_delay": 0, "obs_noise": {}}
+    return all(env.get(k, {} if k == "obs_noise" else 0) == v for k, v in want.items())
 
 
 def _play_online(root: Path, spec: tuple, seeds: str, prefix: str, *extra: str) -> None:
@@ -235,21 +257,20 @@ def _online_sets(root: Path) -> None:
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", "--force")
-    for prefix, (model, d) in LATE_PLAIN.items():
+    for prefix, (model, condition) in CONDITION_PLAIN.items():
         want = _archived_sha(root, model)
-        delay = (_first_meta(root, prefix).get("env") or {}).get("obs_delay")
-        if want and (_set_model(root, prefix) != want or delay != d):
+        if want and (_set_model(root, prefix) != want
+                     or not _in_condition(_first_meta(root, prefix), condition)):
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
-                 f"archive/{model}.zip", *_late(d), "--force")
-    late = LATE_ONLINE
-    for prefix, spec in {**ONLINE, **{p: spec for p, (spec, _) in late.items()}}.items():
+                 f"archive/{model}.zip", *_condition_flags(condition), "--force")
+    played = {**{p: (spec, "none") for p, spec in ONLINE.items()}, **CONDITION_ONLINE}
+    for prefix, (spec, condition) in played.items():
         meta, model = _first_meta(root, prefix), spec[1]
         setting = meta.get("online") or {}
-        d = late[prefix][1] if prefix in late else 0
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))
-                or (meta.get("env") or {}).get("obs_delay", 0) != d):
-            _play_online(root, spec, "0-999", prefix, *(["--condition", f"delay{d}"] if d else []))
+                or not _in_condition(meta, condition)):
+            _play_online(root, spec, "0-999", prefix, "--condition", condition)
     for prefix, start in ONLINE_ORACLES.items():
         spec, ilc = ONLINE[start], _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}

@@ -592,22 +592,25 @@ def table_steps() -> list[Step]:
                            *(f"{p}:{p}_repetitive" for p in seeds), "--paired-seeds"),
                           tuple(f"rollouts/{p}{x}" for p in seeds for x in ("", "_repetitive")),
                           stdout=True, section="all"))
-    # ... through a fixed latency (the lead's channel d steps late each way): the hardware
-    # study's correction against its seeds alone, against the feedforward rival's correction
-    # under the same latency, and against itself without latency
-    for d in (1, 3):
-        late100 = [f"late100_s{k}" for k in range(1, 6)]
+    # ... under studies/deploy.py's conditions (latency d: the lead's channel d steps late each
+    # way; noise1: every reading noisy, the correction reading the measured error): the hardware
+    # study's correction against its seeds alone and against itself in the ideal world, and
+    # through latency against the feedforward rival's correction under the same latency
+    late100 = [f"late100_s{k}" for k in range(1, 6)]
+    for cond, named in (("delay1", "latency 1"), ("delay3", "latency 3"), ("noise1", "noise 1 cm")):
         tables = {
-            f"late100_repetitive_delay{d}": ([(f"{p}_delay{d}", f"{p}_repetitive_delay{d}")
-                                              for p in late100], ("alone", "with the correction"),
-                                             True),
-            f"late100_repetitive_delay{d}_vs_feedforward_repetitive_delay{d}": (
-                [(f"feedforward_repetitive_delay{d}", f"{p}_repetitive_delay{d}")
-                 for p in late100], ("feedforward + correction", "hardware lead + correction"),
-                False),
-            f"late100_repetitive_delay{d}_vs_late100_repetitive": (
-                [(f"{p}_repetitive", f"{p}_repetitive_delay{d}") for p in late100],
-                ("no latency", f"latency {d}"), True)}
+            f"late100_repetitive_{cond}": ([(f"{p}_{cond}", f"{p}_repetitive_{cond}")
+                                            for p in late100], ("alone", "with the correction"),
+                                           True),
+            f"late100_repetitive_{cond}_vs_late100_repetitive": (
+                [(f"{p}_repetitive", f"{p}_repetitive_{cond}") for p in late100],
+                ("ideal world", named), True)}
+        if cond.startswith("delay"):
+            tables[f"late100_repetitive_{cond}_vs_feedforward_repetitive_{cond}"] = (
+                [(f"feedforward_repetitive_{cond}", f"{p}_repetitive_{cond}") for p in late100],
+                ("feedforward + correction", "hardware lead + correction"), False)
+            steps.append(_pair("feedforward", f"feedforward_repetitive_{cond}",
+                               f"{on}/feedforward_repetitive_{cond}_vs_feedforward.md"))
         for name, (sets, names, paired) in tables.items():
             steps.append(Step((f"{on}/{name}.md",),
                               ("studies/online_correction.py", "summary", "--pairs",
@@ -615,8 +618,6 @@ def table_steps() -> list[Step]:
                                *(("--paired-seeds",) if paired else ())),
                               tuple(dict.fromkeys(f"rollouts/{x}" for pair in sets for x in pair)),
                               stdout=True, section="all"))
-        steps.append(_pair("feedforward", f"feedforward_repetitive_delay{d}",
-                           f"{on}/feedforward_repetitive_delay{d}_vs_feedforward.md"))
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
     looped = "v5_err_decay_repetitive_5m"
