@@ -10,8 +10,11 @@ then play the tuned one on any seeds as a rollout set that metrics.py compares l
 
 ``tune`` plays every setting of both kinds on the 50 tuning seeds (5 s episodes, one batch
 each) on top of the lead (--base policy: the model, the headline by default; --base analytic:
-the analytic lead), and prints mean and settled error (t >= 0.5 s) beside the lead alone;
-the lowest settled error of each kind is its tuned setting. ``play`` writes the lead with one
+the analytic lead; --base feedforward: no lead, on the model-based feedforward rival), and
+prints mean and settled error (t >= 0.5 s) beside the lead alone; the lowest settled error of
+each kind is its tuned setting. Both ``tune`` and ``play`` take --condition, one of
+studies/deploy.py's (delay1, delay3: the lead's channel late; noise1, noise2: every reading
+noisy), applied to the lead and to the correction alike. ``play`` writes the lead with one
 correction as rollouts/<prefix>/ (the set's files record the correction; a repetitive one
 is labelled as knowing the planned path). ``summary`` reads pairs of rollout sets (each training
 seed's model alone and with the correction, the same test seeds) and prints each seed's mean
