@@ -44,9 +44,10 @@ from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["tune", "play", "summary"]]
+    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions"]]
     """tune: the grid on the tuning seeds; play: one setting as a rollout set; summary: a
-    five-seed study's sets with and without a correction (--pairs)."""
+    five-seed study's sets with and without a correction (--pairs); excursions: the rare large
+    errors and self-collisions of groups of sets (--groups)."""
     base: Literal["policy", "analytic", "feedforward"] = "policy"
     """The lead the correction adds to: a PPO model (--model), the analytic lead, or none on
     top of the model-based feedforward rival (EnvConfig.feedforward: the correction is then
@@ -88,6 +89,8 @@ class Args:
     """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
     bootstrap: int = 10000
     """summary: resamples of the two-level bootstrap."""
+    groups: list[str] = field(default_factory=list)
+    """excursions: LABEL=PREFIX,PREFIX,... (a study's sets, counted together), one per group."""
     paired_seeds: bool = False
     """summary: each pair's two sets come from one training seed's model (one model with and
     without the correction, or two continuations of one model): print a seed-paired CI (the
@@ -282,9 +285,37 @@ def summary(args: Args) -> None:
               f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}{paired}")
 
 
+FAR, AFTER = 0.30, 1.0  # m, s: an excursion is the tip this far off after the swing from home
+
+
+def excursions(args: Args) -> None:
+    """Per group of rollout sets: its episodes, those whose tip is ever more than FAR off
+    after AFTER s, and those with any self-collision after AFTER s (what a mean hides)."""
+    from panda_lead.metrics.pairing import load_set
+    from panda_lead.rollout import ROLLOUT_DIR
+
+    if not args.groups or any(g.count("=") != 1 or not g.split("=")[1] for g in args.groups):
+        raise UserError("excursions needs --groups LABEL=PREFIX,PREFIX,... (rollout sets)")
+    print(f"`uv run studies/online_correction.py excursions --groups {shlex.join(args.groups)}`: "
+          f"episodes whose tip is ever more than {100 * FAR:g} cm off, and with any "
+          f"self-collision, after the first {AFTER:g} s.\n")
+    print(f"| group | episodes | > {100 * FAR:g} cm off | self-collision |\n|---|---|---|---|")
+    for group in args.groups:
+        label, prefixes = group.split("=")
+        episodes = far = touched = 0
+        for prefix in prefixes.split(","):
+            for r in load_set(prefix, ROLLOUT_DIR).values():
+                late = r.t >= AFTER
+                episodes += 1
+                far += bool(r.error[late].max() > FAR)
+                touched += bool(np.asarray(r.self_collision)[late].any())
+        print(f"| {label} | {episodes} | {far} | {touched} |")
+
+
 def main() -> None:
     args = parse_cli(Args, description=__doc__)
-    {"tune": tune, "play": play, "summary": summary}[args.command](args)
+    {"tune": tune, "play": play, "summary": summary,
+     "excursions": excursions}[args.command](args)
 
 
 if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2

@@ -618,6 +618,20 @@ def table_steps() -> list[Step]:
                                *(("--paired-seeds",) if paired else ())),
                               tuple(dict.fromkeys(f"rollouts/{x}" for pair in sets for x in pair)),
                               stdout=True, section="all"))
+    # what a mean hides: the rare large excursions and self-collisions, with and without it
+    groups, sets = [], []
+    for cond in ("", "_delay3", "_noise1"):
+        for label, mid in (("alone", ""), ("with its correction", "_repetitive")):
+            prefixes = [f"{p}{mid}{cond}" for p in late100]
+            groups.append(f"hardware study {label}{cond.replace('_', ', ')}={','.join(prefixes)}")
+            sets += prefixes
+    groups += ["feedforward alone=feedforward", "feedforward with its correction="
+               "feedforward_repetitive"]
+    steps.append(Step((f"{on}/excursions.md",),
+                      ("studies/online_correction.py", "excursions", "--groups", *groups),
+                      tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
+                                                      "feedforward_repetitive")),
+                      stdout=True, section="all"))
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
     looped = "v5_err_decay_repetitive_5m"

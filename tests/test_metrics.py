@@ -756,3 +756,19 @@ def test_the_two_level_bootstrap_carries_the_seeds_spread_and_pairs_seeds_when_t
     assert paired == pytest.approx((-0.1, -0.1), abs=1e-9)
     with pytest.raises(ValueError, match="as many seeds"):
         two_level_bootstrap(a, b[:4], 10, rng, paired=True)
+
+
+def test_excursions_count_the_episodes_far_off_after_the_first_second(tmp_path, monkeypatch,
+                                                                      capsys):
+    """online_correction.py excursions: a set whose tip stays 35 cm off counts every episode,
+    one 1 cm off none, and a group sums its sets."""
+    sys.path.insert(0, str(REPO / "studies"))
+    from online_correction import Args, excursions
+
+    monkeypatch.chdir(tmp_path)
+    write_prefix(tmp_path / "rollouts", "near", 0.01, [0, 1], T=200)
+    write_prefix(tmp_path / "rollouts", "far", 0.35, [0, 1, 2], T=200)
+    excursions(Args(command="excursions", groups=["both=near,far", "near=near"]))
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| both")
+            or line.startswith("| near")]
+    assert rows == ["| both | 5 | 3 | 0 |", "| near | 2 | 0 | 0 |"]
