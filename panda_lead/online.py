@@ -43,12 +43,13 @@ class OnlineCorrection:
     advance: int = 0  # repetitive: control steps of phase lead
     smooth: int = 0  # repetitive: Q's half-width (control steps)
     start: float = 0.5  # s: errors before this are not learned from
+    max_error: float = 0.0  # m: errors farther than this are not learned from (0: all are)
 
     def __post_init__(self):
         if self.kind not in KINDS:
             raise ValueError(f"unknown online correction {self.kind!r}; choose from {KINDS}")
         if not (np.isfinite(self.gain) and self.gain >= 0 and self.advance >= 0
-                and self.smooth >= 0 and self.start >= 0):
+                and self.smooth >= 0 and self.start >= 0 and self.max_error >= 0):
             raise ValueError(f"online correction settings must be finite and >= 0: {self}")
 
     @property
@@ -56,7 +57,10 @@ class OnlineCorrection:
         return self.kind == "repetitive"
 
     def meta(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        if not self.max_error:  # the sets played before the gate existed record none
+            del out["max_error"]
+        return out
 
 
 class Corrector:
@@ -104,6 +108,8 @@ class Corrector:
                 src = acts - lap + correction.advance + j
                 e_then, has_e = _at(state["e"], src, known)
                 learn = has_e & (src * dt >= correction.start)
+                if correction.max_error:  # an excursion is not a lap's error to repeat
+                    learn &= np.linalg.norm(e_then, axis=1) <= correction.max_error
                 c += np.where(has_c[:, None], c_then, 0.0) + np.where(
                     learn[:, None], correction.gain * e_then, 0.0)
             c /= len(shifts)

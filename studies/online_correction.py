@@ -76,6 +76,8 @@ class Args:
     """play: the repetitive correction's phase lead (control steps)."""
     smooth: int = 0
     """play: the repetitive correction's low-pass half-width (control steps)."""
+    max_error: float = 0.0
+    """play: the correction does not learn from errors farther than this (m; 0: from all)."""
     seeds: str = "0-999"
     """play: trajectory seeds (test seeds only for reported results)."""
     prefix: str = ""
@@ -204,7 +206,8 @@ def play(args: Args) -> None:
         raise UserError("play needs --prefix NAME (the rollout set's folder under rollouts/)")
     seeds = parse_seed_range(args.seeds)
     try:
-        correction = OnlineCorrection(args.kind, args.gain, args.advance, args.smooth)
+        correction = OnlineCorrection(args.kind, args.gain, args.advance, args.smooth,
+                                      max_error=args.max_error)
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:

@@ -207,6 +207,10 @@ CONDITION_ONLINE = {
                                            "noise1") for k in range(1, 6)},
     **{f"feedforward_repetitive_{c}": (ONLINE["feedforward_repetitive"], c)
        for c in ("delay1", "delay3")}}
+# ... and gated: not learning from errors farther than 5 cm (tuning_gate.md, selection seeds)
+GATE = 0.05
+GATED = {f"late100_s{k}_repetitive_guarded": ONLINE[f"late100_s{k}_repetitive"]
+         for k in range(1, 6)}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
@@ -271,6 +275,13 @@ def _online_sets(root: Path) -> None:
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))
                 or not _in_condition(meta, condition)):
             _play_online(root, spec, "0-999", prefix, "--condition", condition)
+    for prefix, spec in GATED.items():
+        meta = _first_meta(root, prefix)
+        setting = meta.get("online") or {}
+        if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
+                or setting.get("max_error") != GATE
+                or meta.get("model_sha256") != _archived_sha(root, spec[1])):
+            _play_online(root, spec, "0-999", prefix, "--max-error", str(GATE))
     for prefix, start in ONLINE_ORACLES.items():
         spec, ilc = ONLINE[start], _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}

@@ -625,8 +625,20 @@ def table_steps() -> list[Step]:
             prefixes = [f"{p}{mid}{cond}" for p in late100]
             groups.append(f"hardware study {label}{cond.replace('_', ', ')}={','.join(prefixes)}")
             sets += prefixes
-    groups += ["feedforward alone=feedforward", "feedforward with its correction="
+    gated = [f"{p}_repetitive_guarded" for p in late100]  # not learning from errors > 5 cm
+    groups += [f"hardware study with its correction gated at 5 cm={','.join(gated)}",
+               "feedforward alone=feedforward", "feedforward with its correction="
                "feedforward_repetitive"]
+    sets += gated
+    for name, side_a, names in (("late100_repetitive_guarded", "{p}", ("alone", "gated")),
+                                ("late100_repetitive_guarded_vs_ungated", "{p}_repetitive",
+                                 ("ungated", "gated at 5 cm"))):
+        pairs_ = [(side_a.format(p=p), f"{p}_repetitive_guarded") for p in late100]
+        steps.append(Step((f"{on}/{name}.md",),
+                          ("studies/online_correction.py", "summary", "--pairs",
+                           *(f"{x}:{y}" for x, y in pairs_), "--names", *names, "--paired-seeds"),
+                          tuple(f"rollouts/{x}" for pair in pairs_ for x in pair),
+                          stdout=True, section="all"))
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",

@@ -299,6 +299,8 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
      ["--model is for --base policy", "feedforward"]),
     ("studies/online_correction.py", ["play", "--base", "feedforward", "--oracle", "--prefix",
                                       "x"], ["--oracle", "feedforward base has none"]),
+    ("studies/online_correction.py", ["play", "--prefix", "x", "--max-error", "-0.1"],
+     ["must be finite and >= 0"]),
     ("studies/online_correction.py", ["excursions", "--groups", "x"],
      ["excursions needs --groups LABEL=PREFIX"]),
     ("studies/online_correction.py", ["play", "--base", "analytic", "--condition", "delay9x",

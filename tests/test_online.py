@@ -73,6 +73,25 @@ def test_the_repetitive_correction_adds_the_error_one_lap_ago_plus_its_advance()
     np.testing.assert_allclose(lead[:, 0], np.clip(c, -MAX_LEAD, MAX_LEAD), atol=1e-7)
 
 
+def test_the_gate_keeps_an_excursion_out_of_what_the_correction_learns():
+    """max_error: an error farther than it (a 20 cm excursion) is not learned from, every other
+    error is, as the law without the gate learns it; and the gate is recorded only when set."""
+    steps, lap_steps, gain = 30, 4, 0.5
+    e = np.random.default_rng(2).normal(0, 0.01, (steps, 1, 3))
+    e[10, 0] = [0.2, 0.0, 0.0]
+    gated = StubTask([lap_steps * DT], e).play(wrap(zero_lead, OnlineCorrection(
+        "repetitive", gain, start=0.0, max_error=0.05)))
+    c = np.zeros((steps, 3))
+    for k in range(lap_steps, steps):
+        c[k] = c[k - lap_steps]
+        if np.linalg.norm(e[k - lap_steps, 0]) <= 0.05:
+            c[k] += gain * e[k - lap_steps, 0]
+    np.testing.assert_allclose(gated[:, 0], np.clip(c, -MAX_LEAD, MAX_LEAD), atol=1e-7)
+    assert np.abs(gated[14:, 0, 0]).max() < 0.05  # the spike never came back
+    assert "max_error" not in OnlineCorrection("repetitive", 0.3).meta()
+    assert OnlineCorrection("repetitive", 0.3, max_error=0.05).meta()["max_error"] == 0.05
+
+
 def test_a_fresh_episode_starts_from_no_correction():
     e = np.full((30, 1, 3), 0.01)
     act = wrap(zero_lead, OnlineCorrection("integral", 5.0, start=0.0))
