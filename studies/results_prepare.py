@@ -209,8 +209,10 @@ CONDITION_ONLINE = {
        for c in ("delay1", "delay3")}}
 # ... and gated: not learning from errors farther than 5 cm (tuning_gate.md, selection seeds)
 GATE = 0.05
-GATED = {f"late100_s{k}_repetitive_guarded": ONLINE[f"late100_s{k}_repetitive"]
-         for k in range(1, 6)}
+GATED = {**{f"late100_s{k}_repetitive_guarded": ONLINE[f"late100_s{k}_repetitive"]
+            for k in range(1, 6)},
+         "hardware_repetitive_guarded": ONLINE["hardware_repetitive"]}
+GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded"}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
@@ -282,12 +284,16 @@ def _online_sets(root: Path) -> None:
                 or setting.get("max_error") != GATE
                 or meta.get("model_sha256") != _archived_sha(root, spec[1])):
             _play_online(root, spec, "0-999", prefix, "--max-error", str(GATE))
-    for prefix, start in ONLINE_ORACLES.items():
-        spec, ilc = ONLINE[start], _first_meta(root, prefix).get("ilc") or {}
+    oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
+               **{p: (GATED[start], GATE) for p, start in GATED_ORACLES.items()}}
+    for prefix, (spec, gate) in oracles.items():
+        ilc = _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
+                or setting.get("max_error") != gate
                 or ilc.get("start_model_sha256") != _archived_sha(root, spec[1])):
-            _play_online(root, spec, "0-199", prefix, "--oracle")
+            _play_online(root, spec, "0-199", prefix, "--oracle",
+                         *(("--max-error", str(gate)) if gate else ()))
 
 
 def _run(root: Path, *argv: str) -> None:

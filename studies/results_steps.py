@@ -625,6 +625,8 @@ def table_steps() -> list[Step]:
             prefixes = [f"{p}{mid}{cond}" for p in late100]
             groups.append(f"hardware study {label}{cond.replace('_', ', ')}={','.join(prefixes)}")
             sets += prefixes
+    steps.append(_oracle_table(f"{on}/hardware_repetitive_guarded_with_oracle.md",
+                               "hardware_repetitive_guarded", "ilc_hardware_repetitive_guarded"))
     gated = [f"{p}_repetitive_guarded" for p in late100]  # not learning from errors > 5 cm
     groups += [f"hardware study with its correction gated at 5 cm={','.join(gated)}",
                "feedforward alone=feedforward", "feedforward with its correction="
