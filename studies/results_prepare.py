@@ -209,9 +209,11 @@ CONDITION_ONLINE = {
        for c in ("delay1", "delay3")}}
 # ... and gated: not learning from errors farther than 5 cm (tuning_gate.md, selection seeds)
 GATE = 0.05
-GATED = {**{f"late100_s{k}_repetitive_guarded": ONLINE[f"late100_s{k}_repetitive"]
-            for k in range(1, 6)},
-         "hardware_repetitive_guarded": ONLINE["hardware_repetitive"]}
+# (prefix -> (spec, condition)), in the ideal world and under latency 3 and noise 1 cm
+GATED = {**{f"late100_s{k}_repetitive_guarded{c}": (CONDITION_ONLINE.get(
+             f"late100_s{k}_repetitive{c}", (ONLINE[f"late100_s{k}_repetitive"], ""))[0],
+             c.lstrip("_") or "none") for c in ("", "_delay3", "_noise1") for k in range(1, 6)},
+         "hardware_repetitive_guarded": (ONLINE["hardware_repetitive"], "none")}
 GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded"}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
@@ -277,15 +279,16 @@ def _online_sets(root: Path) -> None:
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))
                 or not _in_condition(meta, condition)):
             _play_online(root, spec, "0-999", prefix, "--condition", condition)
-    for prefix, spec in GATED.items():
+    for prefix, (spec, condition) in GATED.items():
         meta = _first_meta(root, prefix)
         setting = meta.get("online") or {}
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or setting.get("max_error") != GATE
+                or setting.get("max_error") != GATE or not _in_condition(meta, condition)
                 or meta.get("model_sha256") != _archived_sha(root, spec[1])):
-            _play_online(root, spec, "0-999", prefix, "--max-error", str(GATE))
+            _play_online(root, spec, "0-999", prefix, "--max-error", str(GATE), "--condition",
+                         condition)
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
-               **{p: (GATED[start], GATE) for p, start in GATED_ORACLES.items()}}
+               **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
         ilc = _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}

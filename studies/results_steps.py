@@ -627,15 +627,22 @@ def table_steps() -> list[Step]:
             sets += prefixes
     steps.append(_oracle_table(f"{on}/hardware_repetitive_guarded_with_oracle.md",
                                "hardware_repetitive_guarded", "ilc_hardware_repetitive_guarded"))
-    gated = [f"{p}_repetitive_guarded" for p in late100]  # not learning from errors > 5 cm
-    groups += [f"hardware study with its correction gated at 5 cm={','.join(gated)}",
-               "feedforward alone=feedforward", "feedforward with its correction="
+    for cond in ("", "_delay3", "_noise1"):  # not learning from errors farther than 5 cm
+        gated = [f"{p}_repetitive_guarded{cond}" for p in late100]
+        groups.append(f"hardware study with its correction gated at 5 cm"
+                      f"{cond.replace('_', ', ')}={','.join(gated)}")
+        sets += gated
+    groups += ["feedforward alone=feedforward", "feedforward with its correction="
                "feedforward_repetitive"]
-    sets += gated
     for name, side_a, names in (("late100_repetitive_guarded", "{p}", ("alone", "gated")),
                                 ("late100_repetitive_guarded_vs_ungated", "{p}_repetitive",
-                                 ("ungated", "gated at 5 cm"))):
-        pairs_ = [(side_a.format(p=p), f"{p}_repetitive_guarded") for p in late100]
+                                 ("ungated", "gated at 5 cm")),
+                                ("late100_repetitive_guarded_delay3_vs_ungated",
+                                 "{p}_repetitive_delay3", ("ungated, latency 3", "gated")),
+                                ("late100_repetitive_guarded_noise1_vs_ungated",
+                                 "{p}_repetitive_noise1", ("ungated, noise 1 cm", "gated"))):
+        cond = name.removeprefix("late100_repetitive_guarded").removesuffix("_vs_ungated")
+        pairs_ = [(side_a.format(p=p), f"{p}_repetitive_guarded{cond}") for p in late100]
         steps.append(Step((f"{on}/{name}.md",),
                           ("studies/online_correction.py", "summary", "--pairs",
                            *(f"{x}:{y}" for x, y in pairs_), "--names", *names, "--paired-seeds"),
