@@ -173,6 +173,12 @@ class LeadTask:
         self._error_noisy = uses_error and bool(std[self._reading_cols[0]].any()
                                                 or std[self._reading_cols[1]].any())
         self._error_cols = cols.get("tip_error")
+        # what an online correction reads under noise (error_reading_noise): the reading noisy
+        # in the config but never drawn here would make its measured error exact
+        self._unread = [f for f, rc in zip(("ee_pos", "target_pos"), self._reading_cols,
+                                           strict=True)
+                        if c.obs_noise.get(f) and not np.isin(rc, self._noisy).all()]
+        self._reading_noisy = bool(c.obs_noise.get("ee_pos") or c.obs_noise.get("target_pos"))
 
     def _draw_noise(self, ids) -> None:
         """Slots ``ids``' noise for this step (all when None), into self._noise."""
@@ -190,14 +196,11 @@ class LeadTask:
         """(N, 3) the noise of the latest measured tip error target - tip (the target reading's
         draw minus the tip reading's; the same draws the observation carries), 0.0 without
         noise on either reading. What an online correction reads under noise (online.py)."""
-        c = self.config
-        if not (c.obs_noise.get("ee_pos") or c.obs_noise.get("target_pos")):
+        if not self._reading_noisy:
             return 0.0
-        drawn = set(self._noisy.tolist())
-        for f, cols in zip(("ee_pos", "target_pos"), self._reading_cols, strict=True):
-            if c.obs_noise.get(f) and not drawn.issuperset(cols.tolist()):
-                raise ValueError(f"the env draws no noise for the {f} reading (observe {f} or "
-                                 "tip_error): the measured error would be exact")
+        if self._unread:
+            raise ValueError(f"the env draws no noise for the {self._unread[0]} reading (observe "
+                             f"{self._unread[0]} or tip_error): the measured error would be exact")
         return -self._reading_noise()
 
     def set_speed_cap(self, cap: float | None) -> None:
