@@ -209,10 +209,12 @@ CONDITION_ONLINE = {
        for c in ("delay1", "delay3")}}
 # ... and gated: not learning from errors farther than 5 cm (tuning_gate.md, selection seeds)
 GATE = 0.05
-# (prefix -> (spec, condition)), in the ideal world and under latency 3 and noise 1 cm
-GATED = {**{f"late100_s{k}_repetitive_guarded{c}": (CONDITION_ONLINE.get(
-             f"late100_s{k}_repetitive{c}", (ONLINE[f"late100_s{k}_repetitive"], ""))[0],
-             c.lstrip("_") or "none") for c in ("", "_delay3", "_noise1") for k in range(1, 6)},
+# (prefix -> (spec, condition)), in the ideal world and under latency 3 and noise 1 cm, each
+# with the setting the ungated correction has there
+GATED = {**{f"late100_s{k}_repetitive_guarded": (ONLINE[f"late100_s{k}_repetitive"], "none")
+            for k in range(1, 6)},
+         **{f"late100_s{k}_repetitive_guarded_{c}": CONDITION_ONLINE[f"late100_s{k}_repetitive_{c}"]
+            for c in ("delay3", "noise1") for k in range(1, 6)},
          "hardware_repetitive_guarded": (ONLINE["hardware_repetitive"], "none")}
 GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded"}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
@@ -271,22 +273,17 @@ def _online_sets(root: Path) -> None:
                      or not _in_condition(_first_meta(root, prefix), condition)):
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", *_condition_flags(condition), "--force")
-    played = {**{p: (spec, "none") for p, spec in ONLINE.items()}, **CONDITION_ONLINE}
-    for prefix, (spec, condition) in played.items():
+    played = {**{p: (spec, "none", None) for p, spec in ONLINE.items()},
+              **{p: (spec, c, None) for p, (spec, c) in CONDITION_ONLINE.items()},
+              **{p: (spec, c, GATE) for p, (spec, c) in GATED.items()}}
+    for prefix, (spec, condition, gate) in played.items():
         meta, model = _first_meta(root, prefix), spec[1]
         setting = meta.get("online") or {}
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or (model and meta.get("model_sha256") != _archived_sha(root, model))
-                or not _in_condition(meta, condition)):
-            _play_online(root, spec, "0-999", prefix, "--condition", condition)
-    for prefix, (spec, condition) in GATED.items():
-        meta = _first_meta(root, prefix)
-        setting = meta.get("online") or {}
-        if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or setting.get("max_error") != GATE or not _in_condition(meta, condition)
-                or meta.get("model_sha256") != _archived_sha(root, spec[1])):
-            _play_online(root, spec, "0-999", prefix, "--max-error", str(GATE), "--condition",
-                         condition)
+                or setting.get("max_error") != gate or not _in_condition(meta, condition)
+                or (model and meta.get("model_sha256") != _archived_sha(root, model))):
+            _play_online(root, spec, "0-999", prefix, "--condition", condition,
+                         *(("--max-error", str(gate)) if gate else ()))
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
