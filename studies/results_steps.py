@@ -104,6 +104,17 @@ def _pair(a: str, b: str, out: str) -> Step:
                 per_seed_dropped=True, section="all")
 
 
+def _summary(out: str, pairs: list[tuple[str, str]], names: tuple[str, str] | None = None,
+             paired: bool = False) -> Step:
+    """online_correction.py summary's table of a five-seed study's pairs of rollout sets (A, B)
+    on the test seeds, B minus A with a two-level bootstrap (and a seed-paired one)."""
+    argv = ("studies/online_correction.py", "summary", "--pairs",
+            *(f"{a}:{b}" for a, b in pairs), *(("--names", *names) if names else ()),
+            *(("--paired-seeds",) if paired else ()))
+    inputs = tuple(dict.fromkeys(f"rollouts/{x}" for pair in pairs for x in pair))
+    return Step((out,), argv, inputs, stdout=True, section="all")
+
+
 ROWS = ("none", "delay1", "delay3", "camera3", "noise1", "noise2")
 # every default row of studies/deploy.py (its DEFAULT_CONDITIONS): a hardware candidate's table
 EVERY_ROW = ("none", "delay1", "delay3", "camera1", "camera3", "noise1", "noise2")
@@ -577,21 +588,14 @@ def table_steps() -> list[Step]:
     for study, name in (("kept", "learned lead + correction"),  # the headline's five seeds,
                         ("late100", "hardware lead + correction"),  # the hardware model's,
                         ("residual", "learned residual on it + correction")):  # and on the rival
-        sets = [("feedforward_repetitive", f"{study}_s{k}_repetitive") for k in range(1, 6)]
-        steps.append(Step((f"{on}/{study}_repetitive_vs_feedforward_repetitive.md",),
-                          ("studies/online_correction.py", "summary", "--pairs",
-                           *(f"{x}:{y}" for x, y in sets), "--names",
-                           "feedforward + correction", name),
-                          tuple(dict.fromkeys(f"rollouts/{x}" for pair in sets for x in pair)),
-                          stdout=True, section="all"))
+        steps.append(_summary(f"{on}/{study}_repetitive_vs_feedforward_repetitive.md",
+                              [("feedforward_repetitive", f"{study}_s{k}_repetitive")
+                               for k in range(1, 6)], ("feedforward + correction", name)))
     for study in ("kept", "late100", "residual"):  # the same five-seed studies, each with
         # and without its correction
-        seeds = [f"{study}_s{k}" for k in range(1, 6)]
-        steps.append(Step((f"{on}/{study}_repetitive.md",),
-                          ("studies/online_correction.py", "summary", "--pairs",
-                           *(f"{p}:{p}_repetitive" for p in seeds), "--paired-seeds"),
-                          tuple(f"rollouts/{p}{x}" for p in seeds for x in ("", "_repetitive")),
-                          stdout=True, section="all"))
+        steps.append(_summary(f"{on}/{study}_repetitive.md",
+                              [(f"{study}_s{k}", f"{study}_s{k}_repetitive") for k in range(1, 6)],
+                              paired=True))
     # ... under studies/deploy.py's conditions (latency d: the lead's channel d steps late each
     # way; noise1: every reading noisy, the correction reading the measured error): the hardware
     # study's correction against its seeds alone and against itself in the ideal world, and
@@ -611,13 +615,8 @@ def table_steps() -> list[Step]:
                 ("feedforward + correction", "hardware lead + correction"), False)
             steps.append(_pair("feedforward", f"feedforward_repetitive_{cond}",
                                f"{on}/feedforward_repetitive_{cond}_vs_feedforward.md"))
-        for name, (sets, names, paired) in tables.items():
-            steps.append(Step((f"{on}/{name}.md",),
-                              ("studies/online_correction.py", "summary", "--pairs",
-                               *(f"{x}:{y}" for x, y in sets), "--names", *names,
-                               *(("--paired-seeds",) if paired else ())),
-                              tuple(dict.fromkeys(f"rollouts/{x}" for pair in sets for x in pair)),
-                              stdout=True, section="all"))
+        steps += [_summary(f"{on}/{name}.md", sets, names, paired)
+                  for name, (sets, names, paired) in tables.items()]
     # what a mean hides: the rare large excursions and self-collisions, with and without it
     groups, sets = [], []
     for cond in ("", "_delay3", "_noise1"):
@@ -642,12 +641,9 @@ def table_steps() -> list[Step]:
                                 ("late100_repetitive_guarded_noise1_vs_ungated",
                                  "{p}_repetitive_noise1", ("ungated, noise 1 cm", "gated"))):
         cond = name.removeprefix("late100_repetitive_guarded").removesuffix("_vs_ungated")
-        pairs_ = [(side_a.format(p=p), f"{p}_repetitive_guarded{cond}") for p in late100]
-        steps.append(Step((f"{on}/{name}.md",),
-                          ("studies/online_correction.py", "summary", "--pairs",
-                           *(f"{x}:{y}" for x, y in pairs_), "--names", *names, "--paired-seeds"),
-                          tuple(f"rollouts/{x}" for pair in pairs_ for x in pair),
-                          stdout=True, section="all"))
+        steps.append(_summary(f"{on}/{name}.md", [(side_a.format(p=p),
+                                                   f"{p}_repetitive_guarded{cond}")
+                                                  for p in late100], names, paired=True))
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
@@ -678,13 +674,9 @@ def table_steps() -> list[Step]:
     # may draw the seeds once for both sides as well (--paired-seeds)
     shared_origin = ("looped_finetuned_vs_added", "looped_finetuned_vs_control_added")
     for name, (side_a, side_b, a_name, b_name) in pairs.items():
-        sets = [(side_a.format(k=k), side_b.format(k=k)) for k in range(1, 6)]
-        paired = ("--paired-seeds",) if name in shared_origin else ()
-        steps.append(Step((f"{on}/{name}.md",),
-                          ("studies/online_correction.py", "summary", "--pairs",
-                           *(f"{x}:{y}" for x, y in sets), "--names", a_name, b_name, *paired),
-                          tuple(f"rollouts/{x}" for pair in sets for x in pair),
-                          stdout=True, section="all"))
+        steps.append(_summary(f"{on}/{name}.md", [(side_a.format(k=k), side_b.format(k=k))
+                                                  for k in range(1, 6)], (a_name, b_name),
+                              paired=name in shared_origin))
     looped_obs = "v5_err_decay_repetitive_observed_5m"
     steps += [_report(looped_obs), _compare(looped_obs, looped)]  # (a two-seed pilot)
     long, looped_long = "v5_err_decay_long_5m", "v5_err_decay_repetitive_long_5m"
