@@ -22,7 +22,9 @@ and settled error, the study's mean over seeds, and corrected minus alone with a
 bootstrap CI (trajectories and training seeds resampled, the two sides' seeds independently:
 a conservative CI for seeds that are in fact paired; --paired-seeds adds the CI with the seeds
 drawn once for both sides, for pairs that share their training seed's model); failed episodes
-charged as metrics.py charges them.
+charged as metrics.py charges them. ``excursions`` counts, per group of sets, the episodes whose
+tip is ever more than 30 cm off after the first second, and those with a self-collision: what a
+mean error hides (results/studies/online/excursions.md).
 """
 
 from __future__ import annotations
