@@ -79,7 +79,8 @@ class Args:
     smooth: int = 0
     """play: the repetitive correction's low-pass half-width (control steps)."""
     max_error: float = 0.0
-    """play: the correction does not learn from errors farther than this (m; 0: from all)."""
+    """tune and play: the repetitive correction does not learn from errors farther than this
+    (m; 0: from all): the gate, the same for every setting of the tuning grid."""
     seeds: str = "0-999"
     """play: trajectory seeds (test seeds only for reported results)."""
     prefix: str = ""
@@ -164,6 +165,7 @@ def tune(args: Args) -> None:
                                       "feedforward": "the feedforward rival"}[args.base]
     given = f" --model {args.model}" if args.model is not None else ""
     given += f" --condition {args.condition}" if args.condition != "none" else ""
+    given += f" --max-error {args.max_error:g}" if args.max_error else ""
     grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
                          for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
                          if getattr(args, name) != getattr(Args, name))
@@ -177,8 +179,8 @@ def tune(args: Args) -> None:
     m, alone = mean_errors(ctrl.config, ctrl.act, TUNE_SEEDS)
     print(f"| none (the lead alone) | | | | {m:.3f} | {alone:.3f} |", flush=True)
     grid = [OnlineCorrection("integral", g) for g in args.integral_gains]
-    grid += [OnlineCorrection("repetitive", g, a, q) for q in args.smooths
-             for g in args.repetitive_gains for a in args.advances]
+    grid += [OnlineCorrection("repetitive", g, a, q, max_error=args.max_error)
+             for q in args.smooths for g in args.repetitive_gains for a in args.advances]
     best: dict[str, tuple[float, OnlineCorrection]] = {}
     for c in grid:
         m, s = mean_errors(ctrl.config, wrap(ctrl.act, c), TUNE_SEEDS)

@@ -373,3 +373,39 @@ def test_the_observed_correction_is_the_one_the_env_adds():
     for _ in range(150):
         assert not obs[:, cols].any()
         obs, *_ = plain.step(np.full((2, 3), 0.5, np.float32))
+
+
+def test_tune_gates_every_setting_and_says_so(monkeypatch, capsys):
+    """online_correction.py tune --max-error: every repetitive setting of the grid is gated,
+    the header's command and the printed play command carry the gate (a tuning table must
+    rerun as printed), and the lead alone is scored beside them. The scoring is stubbed: what
+    is tested is the grid, not the arm."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    import online_correction
+    import preview_rivals
+
+    from panda_lead import online
+
+    played = []
+
+    def fake_wrap(act, correction):
+        played.append(correction)
+        return act
+
+    scores = iter([(1.0, 0.9), (0.8, 0.5), (0.8, 0.4)])  # alone, then the grid's two
+    monkeypatch.setattr(online, "wrap", fake_wrap)
+    monkeypatch.setattr(preview_rivals, "mean_errors", lambda *_: next(scores))
+    args = online_correction.Args(command="tune", base="analytic", integral_gains=(),
+                                  repetitive_gains=(0.5,), advances=(8, 10), smooths=(3,),
+                                  max_error=0.05)
+    online_correction.tune(args)
+    out = capsys.readouterr().out
+    assert [(c.kind, c.gain, c.advance, c.smooth, c.max_error) for c in played] == [
+        ("repetitive", 0.5, 8, 3, 0.05), ("repetitive", 0.5, 10, 3, 0.05)]
+    assert "tune --base analytic --max-error 0.05 --integral-gains  --repetitive-gains 0.5" in out
+    assert "| none (the lead alone) | | | | 1.000 | 0.900 |" in out
+    assert ("Tuned repetitive: gain 0.5 --advance 10 --smooth 3 (settled 0.400 cm): `uv run "
+            "studies/online_correction.py play --base analytic --max-error 0.05 --kind "
+            "repetitive --gain 0.5 --advance 10 --smooth 3") in out
