@@ -644,6 +644,11 @@ def table_steps() -> list[Step]:
         steps.append(_summary(f"{on}/{name}.md", [(side_a.format(p=p),
                                                    f"{p}_repetitive_guarded{cond}")
                                                   for p in late100], names, paired=True))
+    # ... and the gated study against the strongest rival with its own correction, ungated: the
+    # gate was offered to the rival too and hurt it on the selection seeds (tuning_gate.md)
+    steps.append(_summary(f"{on}/late100_repetitive_guarded_vs_feedforward_repetitive.md",
+                          [("feedforward_repetitive", f"{p}_repetitive_guarded") for p in late100],
+                          ("feedforward + correction", "hardware lead + gated correction")))
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
