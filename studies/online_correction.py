@@ -69,7 +69,9 @@ class Args:
     correction alike: none, delay1 and delay3 (the lead's channel 1 or 3 control steps late
     both ways: the correction runs where the lead runs), noise1 and noise2 (every reading
     noisy, the IK aiming at the target reading; the correction reads the measured error),
-    targetnoise1, targetnoise2 (online.py). The target camera (camera1, camera3) is refused."""
+    targetnoise1, targetnoise2 (online.py). The target camera (camera1, camera3) is refused.
+    On --base feedforward the IK aims at the planned path under noise too (the plan is known,
+    not measured): the noise reaches the rival only through the error its correction reads."""
     kind: Literal["integral", "repetitive"] = "repetitive"
     """play: which correction."""
     gain: float = 0.3
@@ -129,6 +131,9 @@ def _base(args: Args):
     if args.base == "analytic":
         return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
+        # under noise its IK aims at the planned path, not at the target's reading (the plan is
+        # known, not measured): the noise reaches only the error its correction reads
+        late = {k: v for k, v in (late or {}).items() if k != "noisy_ik_target"} or None
         ctrl = harness.build("classical", steps, overrides=late)
         meta = {**ctrl.meta, "controller": "feedforward", "knows_path": True}
         return replace(ctrl, config=ctrl.config.replace(feedforward=True), meta=meta)

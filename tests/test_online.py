@@ -409,3 +409,31 @@ def test_tune_gates_every_setting_and_says_so(monkeypatch, capsys):
     assert ("Tuned repetitive: gain 0.5 --advance 10 --smooth 3 (settled 0.400 cm): `uv run "
             "studies/online_correction.py play --base analytic --max-error 0.05 --kind "
             "repetitive --gain 0.5 --advance 10 --smooth 3") in out
+
+
+def test_the_feedforward_rival_under_noise_reads_it_only_through_its_correction():
+    """online_correction.py --base feedforward --condition noise1: the rival's IK aims at the
+    planned path (the plan is known, not measured), so alone it runs as in the ideal world, bit
+    for bit; its correction reads the measured error, so with it the noise moves the arm."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from online_correction import Args, _base
+
+    from panda_lead.rollout import record_many
+
+    ideal = _base(Args(command="play", base="feedforward"))
+    noisy = _base(Args(command="play", base="feedforward", condition="noise1"))
+    assert noisy.config.obs_noise and not noisy.config.noisy_ik_target
+    seeds, circles = [800_000, 800_001], ["circle", "circle"]
+    runs = {}
+    for name, ctrl in (("ideal", ideal), ("noisy", noisy)):
+        config = ctrl.config.replace(episode_steps=150)
+        corrected = wrap(ctrl.act, OnlineCorrection("repetitive", 0.3, 12, 5))
+        runs[name] = (record_many(config, ctrl.act, seeds, shapes=circles),
+                      record_many(config, corrected, seeds, shapes=circles))
+    for a, b in zip(runs["ideal"][0], runs["noisy"][0], strict=True):
+        np.testing.assert_array_equal(a.ee_pos, b.ee_pos)
+    moved = [np.abs(a.ee_pos - b.ee_pos).max()
+             for a, b in zip(runs["ideal"][1], runs["noisy"][1], strict=True)]
+    assert min(moved) > 1e-4
