@@ -107,14 +107,19 @@ class Args:
     training" "trained with it")."""
 
 
-def _condition(name: str) -> dict | None:
-    """The env overrides of one of studies/deploy.py's conditions (None: the ideal world)."""
+def condition_overrides(name: str, base: str = "policy") -> dict | None:
+    """The env overrides of one of studies/deploy.py's conditions for a base (None: the ideal
+    world). The feedforward rival's IK aims at the planned path under noise too (the plan is
+    known, not measured): the noise reaches it only through the error its correction reads."""
     from deploy import overrides  # the deploy table's own definitions
 
     if name.startswith("camera"):
         raise UserError(f"--condition {name}: an online correction reads the tip's error; with a "
                         "late target camera it would read a stale one (not built)")
-    return overrides(name) or None
+    late = overrides(name)
+    if base == "feedforward":
+        late.pop("noisy_ik_target", None)
+    return late or None
 
 
 def _base(args: Args):
@@ -127,13 +132,10 @@ def _base(args: Args):
     steps = int(round(5.0 / control_dt()))
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
-    late = _condition(args.condition)
+    late = condition_overrides(args.condition, args.base)
     if args.base == "analytic":
         return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
-        # under noise its IK aims at the planned path, not at the target's reading (the plan is
-        # known, not measured): the noise reaches only the error its correction reads
-        late = {k: v for k, v in (late or {}).items() if k != "noisy_ik_target"} or None
         ctrl = harness.build("classical", steps, overrides=late)
         meta = {**ctrl.meta, "controller": "feedforward", "knows_path": True}
         return replace(ctrl, config=ctrl.config.replace(feedforward=True), meta=meta)

@@ -195,9 +195,11 @@ ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
 # fixed latency of d control steps each way (the correction computed for when it acts) and under
 # 1 cm of noise (it reads the measured error; its own setting, tuning_hardware_noise1.md): the
 # hardware study's five seeds alone and with their correction, and the feedforward rival's
-# correction through latency (its plain pair is `feedforward`: the latency delays only the
-# lead's channel, where the rival has nothing)
+# correction through latency and under noise (its plain pair is `feedforward`: the latency
+# delays only the lead's channel, where the rival has nothing, and under noise its IK aims at
+# the plan; its correction gets its own setting there, tuning_feedforward_noise1.md)
 ONLINE_NOISE1 = ("repetitive", 0.7, 10, 8)  # tuning_hardware_noise1.md
+ONLINE_FEEDFORWARD_NOISE1 = ("repetitive", 0.15, 12, 5)  # tuning_feedforward_noise1.md
 CONDITION_PLAIN = {f"late100_s{k}_{c}": (f"seeds/{LATE100}_s{k}", c)
                    for c in ("delay1", "delay3", "noise1") for k in range(1, 6)}
 CONDITION_ONLINE = {
@@ -206,7 +208,10 @@ CONDITION_ONLINE = {
     **{f"late100_s{k}_repetitive_noise1": (("policy", f"seeds/{LATE100}_s{k}", *ONLINE_NOISE1),
                                            "noise1") for k in range(1, 6)},
     **{f"feedforward_repetitive_{c}": (ONLINE["feedforward_repetitive"], c)
-       for c in ("delay1", "delay3")}}
+       for c in ("delay1", "delay3")},
+    # under noise the rival's IK aims at the plan; only its correction reads the noisy error
+    "feedforward_repetitive_noise1": (("feedforward", None, *ONLINE_FEEDFORWARD_NOISE1),
+                                      "noise1")}
 # ... and gated: not learning from errors farther than 5 cm (tuning_gate.md, selection seeds)
 GATE = 0.05
 # (prefix -> (spec, condition)), in the ideal world and under latency 3 and noise 1 cm, each
@@ -234,13 +239,13 @@ def _condition_flags(condition: str) -> list[str]:
     return flags
 
 
-def _in_condition(meta: dict, condition: str) -> bool:
-    """Whether a set's first rollout was played under exactly this condition's settings (the
-    ideal world's "none": no delay, no noise)."""
-    from deploy import overrides
+def _in_condition(meta: dict, condition: str, base: str = "policy") -> bool:
+    """Whether a set's first rollout was played under exactly this condition's settings for its
+    base (the ideal world's "none": no delay, no noise)."""
+    from online_correction import condition_overrides
 
     env = meta.get("env") or {}
-    want = overrides(condition) or {"obs_delay": 0, "obs_noise": {}}
+    want = condition_overrides(condition, base) or {"obs_delay": 0, "obs_noise": {}}
     return all(env.get(k, {} if k == "obs_noise" else 0) == v for k, v in want.items())
 
 
@@ -280,7 +285,8 @@ def _online_sets(root: Path) -> None:
         meta, model = _first_meta(root, prefix), spec[1]
         setting = meta.get("online") or {}
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or setting.get("max_error") != gate or not _in_condition(meta, condition)
+                or setting.get("max_error") != gate
+                or not _in_condition(meta, condition, spec[0])
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))):
             _play_online(root, spec, "0-999", prefix, "--condition", condition,
                          *(("--max-error", str(gate)) if gate else ()))

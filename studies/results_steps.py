@@ -609,12 +609,11 @@ def table_steps() -> list[Step]:
             f"late100_repetitive_{cond}_vs_late100_repetitive": (
                 [(f"{p}_repetitive", f"{p}_repetitive_{cond}") for p in late100],
                 ("ideal world", named), True)}
-        if cond.startswith("delay"):
-            tables[f"late100_repetitive_{cond}_vs_feedforward_repetitive_{cond}"] = (
-                [(f"feedforward_repetitive_{cond}", f"{p}_repetitive_{cond}") for p in late100],
-                ("feedforward + correction", "hardware lead + correction"), False)
-            steps.append(_pair("feedforward", f"feedforward_repetitive_{cond}",
-                               f"{on}/feedforward_repetitive_{cond}_vs_feedforward.md"))
+        tables[f"late100_repetitive_{cond}_vs_feedforward_repetitive_{cond}"] = (
+            [(f"feedforward_repetitive_{cond}", f"{p}_repetitive_{cond}") for p in late100],
+            ("feedforward + correction", "hardware lead + correction"), False)
+        steps.append(_pair("feedforward", f"feedforward_repetitive_{cond}",
+                           f"{on}/feedforward_repetitive_{cond}_vs_feedforward.md"))
         steps += [_summary(f"{on}/{name}.md", sets, names, paired)
                   for name, (sets, names, paired) in tables.items()]
     # what a mean hides: the rare large excursions and self-collisions, with and without it
@@ -646,9 +645,12 @@ def table_steps() -> list[Step]:
                                                   for p in late100], names, paired=True))
     # ... and the gated study against the strongest rival with its own correction, ungated: the
     # gate was offered to the rival too and hurt it on the selection seeds (tuning_gate.md)
-    steps.append(_summary(f"{on}/late100_repetitive_guarded_vs_feedforward_repetitive.md",
-                          [("feedforward_repetitive", f"{p}_repetitive_guarded") for p in late100],
-                          ("feedforward + correction", "hardware lead + gated correction")))
+    for cond in ("", "_noise1"):  # (under noise, the gate as chosen without it, unchanged)
+        steps.append(_summary(
+            f"{on}/late100_repetitive_guarded{cond}_vs_feedforward_repetitive{cond}.md",
+            [(f"feedforward_repetitive{cond}", f"{p}_repetitive_guarded{cond}")
+             for p in late100],
+            ("feedforward + correction", "hardware lead + gated correction")))
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
