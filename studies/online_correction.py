@@ -70,8 +70,10 @@ class Args:
     both ways: the correction runs where the lead runs), noise1 and noise2 (every reading
     noisy, the IK aiming at the target reading; the correction reads the measured error),
     targetnoise1, targetnoise2 (online.py). The target camera (camera1, camera3) is refused.
-    On --base feedforward the IK aims at the planned path under noise too (the plan is known,
-    not measured): the noise reaches the rival only through the error its correction reads."""
+    A noise condition with the suffix _plan (noise1_plan) aims the IK at the planned path, the
+    readings as noisy: what a controller that knows the plan does. On --base feedforward the IK
+    always aims at the plan (it is known, not measured): the noise reaches the rival only
+    through the error its correction reads."""
     kind: Literal["integral", "repetitive"] = "repetitive"
     """play: which correction."""
     gain: float = 0.3
@@ -107,18 +109,28 @@ class Args:
     training" "trained with it")."""
 
 
+PLAN = "_plan"  # a noise condition with the IK aimed at the planned path: noise1_plan
+
+
 def condition_overrides(name: str, base: str = "policy") -> dict | None:
     """The env overrides of one of studies/deploy.py's conditions for a base (None: the ideal
-    world). The feedforward rival's IK aims at the planned path under noise too (the plan is
-    known, not measured): the noise reaches it only through the error its correction reads."""
+    world). Under deploy.py's noise the IK aims at the target's reading; NAME_plan (noise1_plan,
+    ...) aims it at the planned path instead, the readings as noisy: what a controller that knows
+    the plan does. The feedforward rival always does (the plan is known, not measured): the
+    noise reaches it only through the error its correction reads."""
     from deploy import overrides  # the deploy table's own definitions
 
+    on_plan = name.endswith(PLAN)
+    name = name.removesuffix(PLAN)
     if name.startswith("camera"):
         raise UserError(f"--condition {name}: an online correction reads the tip's error; with a "
                         "late target camera it would read a stale one (not built)")
     late = overrides(name)
-    if base == "feedforward":
-        late.pop("noisy_ik_target", None)
+    if on_plan and "noisy_ik_target" not in late:
+        raise UserError(f"--condition {name}{PLAN}: only a noise condition has an IK to aim at "
+                        "the plan instead of the target's reading")
+    if (on_plan or base == "feedforward") and "noisy_ik_target" in late:
+        late["noisy_ik_target"] = False  # said, not left to the model's own env
     return late or None
 
 

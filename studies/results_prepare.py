@@ -228,11 +228,12 @@ SETTINGS = ("kind", "gain", "advance", "smooth")
 
 
 def _condition_flags(condition: str) -> list[str]:
-    """eval.py's --env flags for one of studies/deploy.py's conditions."""
-    from deploy import overrides
+    """eval.py's --env flags for one of studies/deploy.py's conditions (or its _plan variant:
+    online_correction.condition_overrides)."""
+    from online_correction import condition_overrides
 
     flags = []
-    for key, value in overrides(condition).items():
+    for key, value in (condition_overrides(condition) or {}).items():
         flags.append(f"--env.{key.replace('_', '-')}")
         flags += ([x for k, v in value.items() for x in (k, str(v))] if isinstance(value, dict)
                   else [str(value)])
