@@ -193,7 +193,8 @@ ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
                                             *ONLINE_REPETITIVE) for k in range(1, 6)}}
 # ... and under studies/deploy.py's conditions (online_correction.py --condition): through a
 # fixed latency of d control steps each way (the correction computed for when it acts) and under
-# 1 cm of noise (it reads the measured error; its own setting, tuning_hardware_noise1.md): the
+# 1 cm of noise (it reads the measured error; its own setting, tuning_hardware_noise1.md), the
+# IK aimed at the target's reading (noise1) or at the plan (noise1_plan, as the rival's): the
 # hardware study's five seeds alone and with their correction, and the feedforward rival's
 # correction through latency and under noise (its plain pair is `feedforward`: the latency
 # delays only the lead's channel, where the rival has nothing, and under noise its IK aims at
@@ -201,12 +202,13 @@ ONLINE = {"headline_repetitive": ("policy", HEADLINE, *ONLINE_REPETITIVE),
 ONLINE_NOISE1 = ("repetitive", 0.7, 10, 8)  # tuning_hardware_noise1.md
 ONLINE_FEEDFORWARD_NOISE1 = ("repetitive", 0.15, 12, 5)  # tuning_feedforward_noise1.md
 CONDITION_PLAIN = {f"late100_s{k}_{c}": (f"seeds/{LATE100}_s{k}", c)
-                   for c in ("delay1", "delay3", "noise1") for k in range(1, 6)}
+                   for c in ("delay1", "delay3", "noise1", "noise1_plan") for k in range(1, 6)}
 CONDITION_ONLINE = {
     **{f"late100_s{k}_repetitive_{c}": (ONLINE[f"late100_s{k}_repetitive"], c)
        for c in ("delay1", "delay3") for k in range(1, 6)},
-    **{f"late100_s{k}_repetitive_noise1": (("policy", f"seeds/{LATE100}_s{k}", *ONLINE_NOISE1),
-                                           "noise1") for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_{c}": (("policy", f"seeds/{LATE100}_s{k}", *ONLINE_NOISE1), c)
+       for c in ("noise1", "noise1_plan") for k in range(1, 6)},  # (the same setting tuned best
+    # with the IK on the plan: tuning_hardware_noise1_plan.md)
     **{f"feedforward_repetitive_{c}": (ONLINE["feedforward_repetitive"], c)
        for c in ("delay1", "delay3")},
     # under noise the rival's IK aims at the plan; only its correction reads the noisy error
@@ -219,7 +221,7 @@ GATE = 0.05
 GATED = {**{f"late100_s{k}_repetitive_guarded": (ONLINE[f"late100_s{k}_repetitive"], "none")
             for k in range(1, 6)},
          **{f"late100_s{k}_repetitive_guarded_{c}": CONDITION_ONLINE[f"late100_s{k}_repetitive_{c}"]
-            for c in ("delay3", "noise1") for k in range(1, 6)},
+            for c in ("delay3", "noise1", "noise1_plan") for k in range(1, 6)},
          "hardware_repetitive_guarded": (ONLINE["hardware_repetitive"], "none")}
 GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded"}
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",

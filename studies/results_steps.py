@@ -601,7 +601,10 @@ def table_steps() -> list[Step]:
     # study's correction against its seeds alone and against itself in the ideal world, and
     # through latency against the feedforward rival's correction under the same latency
     late100 = [f"late100_s{k}" for k in range(1, 6)]
-    for cond, named in (("delay1", "latency 1"), ("delay3", "latency 3"), ("noise1", "noise 1 cm")):
+    # (under noise the rival's IK aims at the plan: one rival for both noise worlds)
+    rival = {"noise1_plan": "noise1"}
+    for cond, named in (("delay1", "latency 1"), ("delay3", "latency 3"), ("noise1", "noise 1 cm"),
+                        ("noise1_plan", "noise 1 cm, IK on the plan")):
         tables = {
             f"late100_repetitive_{cond}": ([(f"{p}_{cond}", f"{p}_repetitive_{cond}")
                                             for p in late100], ("alone", "with the correction"),
@@ -609,52 +612,60 @@ def table_steps() -> list[Step]:
             f"late100_repetitive_{cond}_vs_late100_repetitive": (
                 [(f"{p}_repetitive", f"{p}_repetitive_{cond}") for p in late100],
                 ("ideal world", named), True)}
-        tables[f"late100_repetitive_{cond}_vs_feedforward_repetitive_{cond}"] = (
-            [(f"feedforward_repetitive_{cond}", f"{p}_repetitive_{cond}") for p in late100],
+        ff = f"feedforward_repetitive_{rival.get(cond, cond)}"
+        tables[f"late100_repetitive_{cond}_vs_{ff}"] = (
+            [(ff, f"{p}_repetitive_{cond}") for p in late100],
             ("feedforward + correction", "hardware lead + correction"), False)
-        steps.append(_pair("feedforward", f"feedforward_repetitive_{cond}",
-                           f"{on}/feedforward_repetitive_{cond}_vs_feedforward.md"))
+        if cond not in rival:
+            steps.append(_pair("feedforward", ff, f"{on}/{ff}_vs_feedforward.md"))
         steps += [_summary(f"{on}/{name}.md", sets, names, paired)
                   for name, (sets, names, paired) in tables.items()]
     # what a mean hides: the rare large excursions and self-collisions, with and without it
     groups, sets = [], []
-    for cond in ("", "_delay3", "_noise1"):
+    worlds = {"": "", "_delay3": ", delay3", "_noise1": ", noise1",
+              "_noise1_plan": ", noise1, IK on the plan"}
+    for cond, world in worlds.items():
         for label, mid in (("alone", ""), ("with its correction", "_repetitive")):
             prefixes = [f"{p}{mid}{cond}" for p in late100]
-            groups.append(f"hardware study {label}{cond.replace('_', ', ')}={','.join(prefixes)}")
+            groups.append(f"hardware study {label}{world}={','.join(prefixes)}")
             sets += prefixes
     steps.append(_oracle_table(f"{on}/hardware_repetitive_guarded_with_oracle.md",
                                "hardware_repetitive_guarded", "ilc_hardware_repetitive_guarded"))
-    for cond in ("", "_delay3", "_noise1"):  # not learning from errors farther than 5 cm
+    for cond, world in worlds.items():  # not learning from errors farther than 5 cm
         gated = [f"{p}_repetitive_guarded{cond}" for p in late100]
-        groups.append(f"hardware study with its correction gated at 5 cm"
-                      f"{cond.replace('_', ', ')}={','.join(gated)}")
+        groups.append(f"hardware study with its correction gated at 5 cm{world}="
+                      f"{','.join(gated)}")
         sets += gated
     groups += ["feedforward alone=feedforward", "feedforward with its correction="
-               "feedforward_repetitive"]
+               "feedforward_repetitive", "feedforward with its correction, noise1="
+               "feedforward_repetitive_noise1"]
     for name, side_a, names in (("late100_repetitive_guarded", "{p}", ("alone", "gated")),
                                 ("late100_repetitive_guarded_vs_ungated", "{p}_repetitive",
                                  ("ungated", "gated at 5 cm")),
                                 ("late100_repetitive_guarded_delay3_vs_ungated",
                                  "{p}_repetitive_delay3", ("ungated, latency 3", "gated")),
                                 ("late100_repetitive_guarded_noise1_vs_ungated",
-                                 "{p}_repetitive_noise1", ("ungated, noise 1 cm", "gated"))):
+                                 "{p}_repetitive_noise1", ("ungated, noise 1 cm", "gated")),
+                                ("late100_repetitive_guarded_noise1_plan_vs_ungated",
+                                 "{p}_repetitive_noise1_plan",
+                                 ("ungated, noise 1 cm, IK on the plan", "gated"))):
         cond = name.removeprefix("late100_repetitive_guarded").removesuffix("_vs_ungated")
         steps.append(_summary(f"{on}/{name}.md", [(side_a.format(p=p),
                                                    f"{p}_repetitive_guarded{cond}")
                                                   for p in late100], names, paired=True))
     # ... and the gated study against the strongest rival with its own correction, ungated: the
     # gate was offered to the rival too and hurt it on the selection seeds (tuning_gate.md)
-    for cond in ("", "_noise1"):  # (under noise, the gate as chosen without it, unchanged)
+    for cond in ("", "_noise1", "_noise1_plan"):  # (under noise, the gate chosen without it)
+        ff = f"feedforward_repetitive{cond.removesuffix('_plan')}"
         steps.append(_summary(
-            f"{on}/late100_repetitive_guarded{cond}_vs_feedforward_repetitive{cond}.md",
-            [(f"feedforward_repetitive{cond}", f"{p}_repetitive_guarded{cond}")
-             for p in late100],
+            f"{on}/late100_repetitive_guarded{cond}_vs_{ff}.md",
+            [(ff, f"{p}_repetitive_guarded{cond}") for p in late100],
             ("feedforward + correction", "hardware lead + gated correction")))
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
-                                                      "feedforward_repetitive")),
+                                                      "feedforward_repetitive",
+                                                      "feedforward_repetitive_noise1")),
                       stdout=True, section="all"))
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
