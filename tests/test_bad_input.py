@@ -309,6 +309,9 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
                                       "--prefix", "x"], ["camera1", "late target camera"]),
     ("studies/online_correction.py", ["play", "--base", "analytic", "--condition", "delay1",
                                       "--oracle", "--prefix", "x"], ["--oracle", "ideal world"]),
+    ("studies/online_correction.py", ["play", "--base", "analytic", "--condition",
+                                      "delay3_plan", "--prefix", "x"],
+     ["delay3_plan", "only a noise condition"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the

@@ -437,3 +437,27 @@ def test_the_feedforward_rival_under_noise_reads_it_only_through_its_correction(
     moved = [np.abs(a.ee_pos - b.ee_pos).max()
              for a, b in zip(runs["ideal"][1], runs["noisy"][1], strict=True)]
     assert min(moved) > 1e-4
+
+
+def test_a_noise_condition_on_the_plan_aims_the_ik_at_it_and_says_so():
+    """online_correction.condition_overrides: NAME_plan is NAME's noise with the IK aimed at the
+    planned path, said as noisy_ik_target False (the hardware model's own env aims it at the
+    reading, so leaving the key out would not do); the feedforward rival's noise is always on
+    the plan; a condition without noise has no _plan."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from deploy import overrides
+    from online_correction import condition_overrides
+
+    from panda_lead.errors import UserError
+
+    reading = condition_overrides("noise1")
+    plan = condition_overrides("noise1_plan")
+    assert reading["noisy_ik_target"] is True and plan["noisy_ik_target"] is False
+    assert plan["obs_noise"] == reading["obs_noise"] == overrides("noise1")["obs_noise"]
+    assert condition_overrides("noise1", "feedforward") == plan
+    assert condition_overrides("delay3", "feedforward") == overrides("delay3")
+    assert condition_overrides("none") is None
+    with pytest.raises(UserError, match="only a noise condition"):
+        condition_overrides("delay3_plan")
