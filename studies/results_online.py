@@ -1,0 +1,160 @@
+"""The results steps of the online corrections on top of a lead (issue 37, "a lead of another
+kind"; docs/questions.md 9): studies/online_correction.py's tables over the rollout sets
+studies/results_prepare.py plays, in the order results.py builds them. Split from
+results_steps.py to keep each file readable in one sitting; table_steps calls online_steps."""
+
+from __future__ import annotations
+
+from results_steps import HEADLINE, Step, _compare, _oracle_table, _pair, _report, _summary
+
+
+def online_steps() -> list[Step]:
+    steps: list[Step] = []
+    # online corrections on top of a lead (issue 37, "a lead of another kind"): the lap-to-lap
+    # correction on the headline and on the analytic lead (both know each path's lap time),
+    # and on each of the headline study's five seeds
+    on = "results/studies/online"
+    steps += [_pair(HEADLINE, "headline_repetitive", f"{on}/headline_repetitive_vs_headline.md"),
+              # against its own oracle: the ILC restarted from the headline with the correction
+              _oracle_table(f"{on}/headline_repetitive_with_oracle.md", "headline_repetitive",
+                            "ilc_headline_repetitive"),
+              _pair("analytic", "analytic_repetitive", f"{on}/analytic_repetitive_vs_analytic.md"),
+              _pair("analytic_repetitive", "headline_repetitive",
+                    f"{on}/headline_repetitive_vs_analytic_repetitive.md")]
+    # ... and on the hardware model (its own tuning: its arm filter lags), against its own oracle
+    hw = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
+    steps += [_pair(hw, "hardware_repetitive", f"{on}/hardware_repetitive_vs_hardware.md"),
+              _oracle_table(f"{on}/hardware_repetitive_with_oracle.md", "hardware_repetitive",
+                            "ilc_hardware_repetitive")]
+    # the strongest classical rival with the same knowledge: the model-based feedforward with
+    # its own lap-to-lap correction (tuning_feedforward.md)
+    steps += [_pair("feedforward", "feedforward_repetitive",
+                    f"{on}/feedforward_repetitive_vs_feedforward.md"),
+              _pair("analytic_repetitive", "feedforward_repetitive",
+                    f"{on}/feedforward_repetitive_vs_analytic_repetitive.md"),
+              *(_pair("feedforward_repetitive", f"{lead}_repetitive",
+                      f"{on}/{lead}_repetitive_vs_feedforward_repetitive.md")
+                for lead in ("headline", "hardware"))]  # the archived models, by shape
+    for study, name in (("kept", "learned lead + correction"),  # the headline's five seeds,
+                        ("late100", "hardware lead + correction"),  # the hardware model's,
+                        ("residual", "learned residual on it + correction")):  # and on the rival
+        steps.append(_summary(f"{on}/{study}_repetitive_vs_feedforward_repetitive.md",
+                              [("feedforward_repetitive", f"{study}_s{k}_repetitive")
+                               for k in range(1, 6)], ("feedforward + correction", name)))
+    for study in ("kept", "late100", "residual"):  # the same five-seed studies, each with
+        # and without its correction
+        steps.append(_summary(f"{on}/{study}_repetitive.md",
+                              [(f"{study}_s{k}", f"{study}_s{k}_repetitive") for k in range(1, 6)],
+                              paired=True))
+    # ... under studies/deploy.py's conditions (latency d: the lead's channel d steps late each
+    # way; noise1: every reading noisy, the correction reading the measured error): the hardware
+    # study's correction against its seeds alone and against itself in the ideal world, and
+    # through latency against the feedforward rival's correction under the same latency
+    late100 = [f"late100_s{k}" for k in range(1, 6)]
+    # (under noise the rival's IK aims at the plan: one rival for both noise worlds)
+    rival = {"noise1_plan": "noise1"}
+    for cond, named in (("delay1", "latency 1"), ("delay3", "latency 3"), ("noise1", "noise 1 cm"),
+                        ("noise1_plan", "noise 1 cm, IK on the plan")):
+        tables = {
+            f"late100_repetitive_{cond}": ([(f"{p}_{cond}", f"{p}_repetitive_{cond}")
+                                            for p in late100], ("alone", "with the correction"),
+                                           True),
+            f"late100_repetitive_{cond}_vs_late100_repetitive": (
+                [(f"{p}_repetitive", f"{p}_repetitive_{cond}") for p in late100],
+                ("ideal world", named), True)}
+        ff = f"feedforward_repetitive_{rival.get(cond, cond)}"
+        tables[f"late100_repetitive_{cond}_vs_{ff}"] = (
+            [(ff, f"{p}_repetitive_{cond}") for p in late100],
+            ("feedforward + correction", "hardware lead + correction"), False)
+        if cond not in rival:
+            steps.append(_pair("feedforward", ff, f"{on}/{ff}_vs_feedforward.md"))
+        steps += [_summary(f"{on}/{name}.md", sets, names, paired)
+                  for name, (sets, names, paired) in tables.items()]
+    # what a mean hides: the rare large excursions and self-collisions, with and without it
+    groups, sets = [], []
+    worlds = {"": "", "_delay3": ", delay3", "_noise1": ", noise1",
+              "_noise1_plan": ", noise1, IK on the plan"}
+    for cond, world in worlds.items():
+        for label, mid in (("alone", ""), ("with its correction", "_repetitive")):
+            prefixes = [f"{p}{mid}{cond}" for p in late100]
+            groups.append(f"hardware study {label}{world}={','.join(prefixes)}")
+            sets += prefixes
+    steps.append(_oracle_table(f"{on}/hardware_repetitive_guarded_with_oracle.md",
+                               "hardware_repetitive_guarded", "ilc_hardware_repetitive_guarded"))
+    for cond, world in worlds.items():  # not learning from errors farther than 5 cm
+        gated = [f"{p}_repetitive_guarded{cond}" for p in late100]
+        groups.append(f"hardware study with its correction gated at 5 cm{world}="
+                      f"{','.join(gated)}")
+        sets += gated
+    groups += ["feedforward alone=feedforward", "feedforward with its correction="
+               "feedforward_repetitive", "feedforward with its correction, noise1="
+               "feedforward_repetitive_noise1"]
+    for name, side_a, names in (("late100_repetitive_guarded", "{p}", ("alone", "gated")),
+                                ("late100_repetitive_guarded_vs_ungated", "{p}_repetitive",
+                                 ("ungated", "gated at 5 cm")),
+                                ("late100_repetitive_guarded_delay3_vs_ungated",
+                                 "{p}_repetitive_delay3", ("ungated, latency 3", "gated")),
+                                ("late100_repetitive_guarded_noise1_vs_ungated",
+                                 "{p}_repetitive_noise1", ("ungated, noise 1 cm", "gated")),
+                                ("late100_repetitive_guarded_noise1_plan_vs_ungated",
+                                 "{p}_repetitive_noise1_plan",
+                                 ("ungated, noise 1 cm, IK on the plan", "gated"))):
+        cond = name.removeprefix("late100_repetitive_guarded").removesuffix("_vs_ungated")
+        steps.append(_summary(f"{on}/{name}.md", [(side_a.format(p=p),
+                                                   f"{p}_repetitive_guarded{cond}")
+                                                  for p in late100], names, paired=True))
+    # ... and the gated study against the strongest rival with its own correction, ungated: the
+    # gate was offered to the rival too and hurt it on the selection seeds (tuning_gate.md)
+    for cond in ("", "_noise1", "_noise1_plan"):  # (under noise, the gate chosen without it)
+        ff = f"feedforward_repetitive{cond.removesuffix('_plan')}"
+        steps.append(_summary(
+            f"{on}/late100_repetitive_guarded{cond}_vs_{ff}.md",
+            [(ff, f"{p}_repetitive_guarded{cond}") for p in late100],
+            ("feedforward + correction", "hardware lead + gated correction")))
+    steps.append(Step((f"{on}/excursions.md",),
+                      ("studies/online_correction.py", "excursions", "--groups", *groups),
+                      tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
+                                                      "feedforward_repetitive",
+                                                      "feedforward_repetitive_noise1")),
+                      stdout=True, section="all"))
+    # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
+    # seed's plain model with the correction added after training, and against its oracle
+    looped = "v5_err_decay_repetitive_5m"
+    pairs = {"looped_vs_added": ("kept_s{k}_repetitive", "looped_s{k}", "added after training",
+                                 "trained with it"),
+             "looped_vs_plain": ("kept_s{k}", "looped_s{k}", "plain", "trained with it"),
+             "looped_finetuned_vs_added": ("kept_s{k}_repetitive", "looped_ft_s{k}",
+                                           "added after training", "trained on with it"),
+             "looped_finetuned_vs_control_added": ("finetuned_s{k}_repetitive", "looped_ft_s{k}",
+                                                   "trained on without it, added after",
+                                                   "trained on with it"),
+             "looped_long_vs_added": ("long_s{k}_repetitive", "looped_long_s{k}",
+                                      "added after training", "trained with it"),
+             "looped_long_vs_looped": ("looped_s{k}", "looped_long_s{k}",
+                                       "trained with it on 2 s episodes", "on 5 s episodes"),
+             "long_added_vs_added": ("kept_s{k}_repetitive", "long_s{k}_repetitive",
+                                     "added after training on 2 s episodes",
+                                     "on 5 s episodes"),
+             "looped_finetuned_vs_looped": ("looped_s{k}", "looped_ft_s{k}",
+                                            "trained with it from scratch",
+                                            "trained on with it")}
+    # the pairs whose two sides grew from one model (the headline study's seed k): their CIs
+    # may draw the seeds once for both sides as well (--paired-seeds)
+    shared_origin = ("looped_finetuned_vs_added", "looped_finetuned_vs_control_added")
+    for name, (side_a, side_b, a_name, b_name) in pairs.items():
+        steps.append(_summary(f"{on}/{name}.md", [(side_a.format(k=k), side_b.format(k=k))
+                                                  for k in range(1, 6)], (a_name, b_name),
+                              paired=name in shared_origin))
+    looped_obs = "v5_err_decay_repetitive_observed_5m"
+    steps += [_report(looped_obs), _compare(looped_obs, looped)]  # (a two-seed pilot)
+    long, looped_long = "v5_err_decay_long_5m", "v5_err_decay_repetitive_long_5m"
+    steps += [_report(long), _compare(long, "v5_err_decay_kept"), _report(looped_long),
+              _compare(looped_long, long), _compare(looped_long, looped)]
+    looped_ft = "v5_err_decay_repetitive_finetuned_5m"
+    steps += [_report(looped_ft), _compare(looped_ft, "v5_err_decay_finetuned_5m"),
+              _compare(looped_ft, "v5_err_decay_kept"),
+              _oracle_table(f"{on}/looped_finetuned_with_oracle.md", looped_ft, "ilc_looped_ft")]
+    steps += [_report(looped), _compare(looped, "v5_err_decay_kept"),
+              _pair("headline_repetitive", looped, f"{on}/looped_vs_headline_repetitive.md"),
+              _oracle_table(f"{on}/looped_with_oracle.md", looped, "ilc_looped")]
+    return steps
