@@ -24,7 +24,9 @@ a conservative CI for seeds that are in fact paired; --paired-seeds adds the CI 
 drawn once for both sides, for pairs that share their training seed's model); failed episodes
 charged as metrics.py charges them. ``excursions`` counts, per group of sets, the episodes whose
 tip is ever more than 30 cm off after the first second, and those with a self-collision: what a
-mean error hides (results/studies/online/excursions.md).
+mean error hides (results/studies/online/excursions.md). ``figure`` draws settled error against
+tip jerk, one point per group of sets (labelled CONTROLLER @ WORLD), with two-level 95% CIs:
+results/studies/online/planned_path.png.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import shlex
 import subprocess
 import sys
 from dataclasses import dataclass, field
+from itertools import cycle
 from pathlib import Path
 from typing import Literal
 
@@ -46,10 +49,11 @@ from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions"]]
+    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions", "figure"]]
     """tune: the grid on the tuning seeds; play: one setting as a rollout set; summary: a
     five-seed study's sets with and without a correction (--pairs); excursions: the rare large
-    errors and self-collisions of groups of sets (--groups)."""
+    errors and self-collisions of groups of sets (--groups); figure: settled error against jerk,
+    one point per group of sets (--groups, --out)."""
     base: Literal["policy", "analytic", "feedforward"] = "policy"
     """The lead the correction adds to: a PPO model (--model), the analytic lead, or none on
     top of the model-based feedforward rival (EnvConfig.feedforward: the correction is then
@@ -90,7 +94,7 @@ class Args:
     prefix: str = ""
     """play: the rollout set's name under rollouts/."""
     force: bool = False
-    """play: replace a set played by another controller."""
+    """play: replace a set played by another controller; figure: replace an existing --out."""
     oracle: bool = False
     """play: the ILC oracle restarted from the lead with the correction (its ceiling, what
     metrics.py --oracle reads for the share of the gain), instead of the lead itself."""
@@ -99,7 +103,11 @@ class Args:
     bootstrap: int = 10000
     """summary: resamples of the two-level bootstrap."""
     groups: list[str] = field(default_factory=list)
-    """excursions: LABEL=PREFIX,PREFIX,... (a study's sets, counted together), one per group."""
+    """excursions and figure: LABEL=PREFIX,PREFIX,... (a study's sets, counted together), one
+    per group; for figure, LABEL is CONTROLLER @ WORLD (one colour per controller, one marker
+    per world, a controller's worlds joined)."""
+    out: Path | None = None
+    """figure: the PNG to write."""
     paired_seeds: bool = False
     """summary: each pair's two sets come from one training seed's model (one model with and
     without the correction, or two continuations of one model): print a seed-paired CI (the
@@ -314,22 +322,28 @@ def summary(args: Args) -> None:
 FAR, AFTER = 0.30, 1.0  # m, s: an excursion is the tip this far off after the swing from home
 
 
+def _groups(args: Args) -> list[tuple[str, list[str]]]:
+    """--groups as (label, rollout-set prefixes)."""
+    if not args.groups or any(g.count("=") != 1 or not g.split("=")[1] for g in args.groups):
+        raise UserError(f"{args.command} needs --groups LABEL=PREFIX,PREFIX,... (rollout sets)")
+    return [(label, prefixes.split(",")) for label, prefixes in
+            (g.split("=") for g in args.groups)]
+
+
 def excursions(args: Args) -> None:
     """Per group of rollout sets: its episodes, those whose tip is ever more than FAR off
     after AFTER s, and those with any self-collision after AFTER s (what a mean hides)."""
     from panda_lead.metrics.pairing import load_set
     from panda_lead.rollout import ROLLOUT_DIR
 
-    if not args.groups or any(g.count("=") != 1 or not g.split("=")[1] for g in args.groups):
-        raise UserError("excursions needs --groups LABEL=PREFIX,PREFIX,... (rollout sets)")
+    groups = _groups(args)
     print(f"`uv run studies/online_correction.py excursions --groups {shlex.join(args.groups)}`: "
           f"episodes whose tip is ever more than {100 * FAR:g} cm off, and with any "
           f"self-collision, after the first {AFTER:g} s.\n")
     print(f"| group | episodes | > {100 * FAR:g} cm off | self-collision |\n|---|---|---|---|")
-    for group in args.groups:
-        label, prefixes = group.split("=")
+    for label, prefixes in groups:
         episodes = far = touched = 0
-        for prefix in prefixes.split(","):
+        for prefix in prefixes:
             for r in load_set(prefix, ROLLOUT_DIR).values():
                 late = r.t >= AFTER
                 episodes += 1
@@ -338,10 +352,76 @@ def excursions(args: Args) -> None:
         print(f"| {label} | {episodes} | {far} | {touched} |")
 
 
+def _mean_ci(values: np.ndarray, rng, n_boot: int) -> tuple[float, float]:
+    """95% CI of the mean of (sets, trajectories) values: sets (training seeds) and
+    trajectories resampled, the same trajectories for every set drawn (two levels)."""
+    n_sets, n_traj = values.shape
+    means = [values[rng.integers(0, n_sets, n_sets)][:, rng.integers(0, n_traj, n_traj)].mean()
+             for _ in range(n_boot)]
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def figure(args: Args) -> None:
+    """Settled error (95% CI, two levels) against tip jerk, one point per group of sets (the
+    mean over its sets of the mean over the trajectories all of them share); lower left is
+    better."""
+    from panda_lead.metrics.figures import pyplot, save_figure
+    from panda_lead.metrics.pairing import seed_set_title
+
+    groups = _groups(args)
+    if args.out is None or args.out.suffix != ".png":
+        raise UserError("figure needs --out PATH.png")
+    if args.out.exists() and not args.force:
+        raise UserError(f"{args.out} exists: --force replaces it")
+    rng, points, shared = np.random.default_rng(0), [], None
+    for label, prefixes in groups:
+        controller, _, world = (x.strip() for x in label.partition(" @ "))
+        sets = [_set_metrics(p) for p in prefixes]
+        seeds = sorted(set.intersection(*(set(m) for m in sets)))
+        if not seeds:
+            raise UserError(f"figure: the sets of {label!r} share no trajectory seed")
+        shared = seeds if shared is None else sorted(set(shared) & set(seeds))
+        settled, jerk = (np.array([[m[k][key] for k in seeds] for m in sets])
+                         for key in ("settled_err", "jerk_rms"))
+        points.append(dict(controller=controller, world=world or "ideal world",
+                           err=settled.mean(), ci=_mean_ci(settled, rng, args.bootstrap // 5),
+                           jerk=jerk.mean(), sets=len(sets)))
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(11, 6), constrained_layout=True)
+    controllers = list(dict.fromkeys(p["controller"] for p in points))
+    worlds = list(dict.fromkeys(p["world"] for p in points))
+    # strong hues in the order the groups come (rivals first, say): light shades vanish
+    colours = dict(zip(controllers, cycle(["C3", "C4", "C0", "C2", "C1", "C5", "C6", "C9"]),
+                       strict=False))
+    markers = dict(zip(worlds, cycle("osD^v<>"), strict=False))
+    for name in controllers:
+        mine = [p for p in points if p["controller"] == name]
+        ax.plot([p["jerk"] for p in mine], [p["err"] for p in mine], "-", color=colours[name],
+                alpha=0.35)
+        for p in mine:
+            lo, hi = p["ci"]
+            ax.errorbar(p["jerk"], p["err"], yerr=[[p["err"] - lo], [hi - p["err"]]],
+                        fmt=markers[p["world"]], color=colours[name], capsize=2, ms=7,
+                        mec="black", mew=0.5)
+        sets = max(p["sets"] for p in mine)
+        ax.plot([], [], "-", color=colours[name], lw=4,
+                label=name + (f" (mean of {sets} seeds)" if sets > 1 else ""))
+    for world in worlds:
+        ax.plot([], [], markers[world], color="grey", label=world)
+    ax.set(xlabel="tip jerk RMS (m/s^3)", ylabel="settled tracking error, t >= 0.5 s (cm), 95% CI",
+           title=f"Settled error against jerk ({seed_set_title(shared or [], 'trajectories')}); "
+                 "lower left is better\n(each CI is of a level; differences are paired in the "
+                 "tables, with narrower CIs)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    save_figure(fig, args.out)
+    print(f"wrote {args.out}")
+
+
 def main() -> None:
     args = parse_cli(Args, description=__doc__)
-    {"tune": tune, "play": play, "summary": summary,
-     "excursions": excursions}[args.command](args)
+    {"tune": tune, "play": play, "summary": summary, "excursions": excursions,
+     "figure": figure}[args.command](args)
 
 
 if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2

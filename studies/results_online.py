@@ -111,6 +111,24 @@ def online_steps() -> list[Step]:
             f"{on}/late100_repetitive_guarded{cond}_vs_{ff}.md",
             [(ff, f"{p}_repetitive_guarded{cond}") for p in late100],
             ("feedforward + correction", "hardware lead + gated correction")))
+    # the picture of it: settled error against jerk, the rival and the hardware study with and
+    # without their corrections, in the ideal world and under noise with both IKs on the plan
+    # (the rival alone is immune to noise: one point)
+    ideal, noisy = "ideal world", "noise 1 cm, IK on the plan"
+    figure_groups = {"feedforward (model-based rival; immune to noise)": [(ideal, "feedforward")],
+                     "feedforward + correction": [(ideal, "feedforward_repetitive"),
+                                                  (noisy, "feedforward_repetitive_noise1")]}
+    for name, mid in (("hardware study", ""), ("hardware study + correction", "_repetitive"),
+                      ("hardware study + gated correction", "_repetitive_guarded")):
+        figure_groups[name] = [(world, ",".join(f"{p}{mid}{cond}" for p in late100))
+                               for world, cond in ((ideal, ""), (noisy, "_noise1_plan"))]
+    groups_argv = [f"{name} @ {world}={sets}" for name, worlds in figure_groups.items()
+                   for world, sets in worlds]
+    read = [s for worlds in figure_groups.values() for _, sets in worlds for s in sets.split(",")]
+    steps.append(Step((f"{on}/planned_path.png",),
+                      ("studies/online_correction.py", "figure", "--groups", *groups_argv,
+                       "--out", "{out0}"),
+                      tuple(f"rollouts/{x}" for x in dict.fromkeys(read)), section="all"))
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",
