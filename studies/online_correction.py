@@ -361,6 +361,25 @@ def _mean_ci(values: np.ndarray, rng, n_boot: int) -> tuple[float, float]:
     return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
+def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:
+    """Each group's point (controller, world, settled error with its two-level CI, jerk, number
+    of sets) over the trajectories its sets share, and the seeds every group shares."""
+    rng, points, shared = np.random.default_rng(0), [], None
+    for label, prefixes in groups:
+        controller, _, world = (x.strip() for x in label.partition(" @ "))
+        sets = [_set_metrics(p) for p in prefixes]
+        seeds = sorted(set.intersection(*(set(m) for m in sets)))
+        if not seeds:
+            raise UserError(f"figure: the sets of {label!r} share no trajectory seed")
+        shared = seeds if shared is None else sorted(set(shared) & set(seeds))
+        settled, jerk = (np.array([[m[k][key] for k in seeds] for m in sets])
+                         for key in ("settled_err", "jerk_rms"))
+        points.append(dict(controller=controller, world=world or "ideal world",
+                           err=float(settled.mean()), ci=_mean_ci(settled, rng, n_boot),
+                           jerk=float(jerk.mean()), sets=len(sets)))
+    return points, shared or []
+
+
 def figure(args: Args) -> None:
     """Settled error (95% CI, two levels) against tip jerk, one point per group of sets (the
     mean over its sets of the mean over the trajectories all of them share); lower left is
@@ -373,19 +392,7 @@ def figure(args: Args) -> None:
         raise UserError("figure needs --out PATH.png")
     if args.out.exists() and not args.force:
         raise UserError(f"{args.out} exists: --force replaces it")
-    rng, points, shared = np.random.default_rng(0), [], None
-    for label, prefixes in groups:
-        controller, _, world = (x.strip() for x in label.partition(" @ "))
-        sets = [_set_metrics(p) for p in prefixes]
-        seeds = sorted(set.intersection(*(set(m) for m in sets)))
-        if not seeds:
-            raise UserError(f"figure: the sets of {label!r} share no trajectory seed")
-        shared = seeds if shared is None else sorted(set(shared) & set(seeds))
-        settled, jerk = (np.array([[m[k][key] for k in seeds] for m in sets])
-                         for key in ("settled_err", "jerk_rms"))
-        points.append(dict(controller=controller, world=world or "ideal world",
-                           err=settled.mean(), ci=_mean_ci(settled, rng, args.bootstrap // 5),
-                           jerk=jerk.mean(), sets=len(sets)))
+    points, shared = figure_points(groups, args.bootstrap // 5)
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(11, 6), constrained_layout=True)
     controllers = list(dict.fromkeys(p["controller"] for p in points))
@@ -409,7 +416,7 @@ def figure(args: Args) -> None:
     for world in worlds:
         ax.plot([], [], markers[world], color="grey", label=world)
     ax.set(xlabel="tip jerk RMS (m/s^3)", ylabel="settled tracking error, t >= 0.5 s (cm), 95% CI",
-           title=f"Settled error against jerk ({seed_set_title(shared or [], 'trajectories')}); "
+           title=f"Settled error against jerk ({seed_set_title(shared, 'trajectories')}); "
                  "lower left is better\n(each CI is of a level; differences are paired in the "
                  "tables, with narrower CIs)")
     ax.grid(alpha=0.3)

@@ -772,3 +772,37 @@ def test_excursions_count_the_episodes_far_off_after_the_first_second(tmp_path, 
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| both")
             or line.startswith("| near")]
     assert rows == ["| both | 5 | 3 | 0 |", "| near | 2 | 0 | 0 |"]
+
+
+def test_the_figure_puts_each_group_at_its_sets_mean_and_refuses_bad_output(tmp_path,
+                                                                            monkeypatch):
+    """online_correction.py figure: a group's point is the mean over its sets of the settled
+    error (here each set's constant offset), its CI brackets it, and a group of one exact
+    set has a zero-width CI; the PNG is written, an existing one kept without --force."""
+    sys.path.insert(0, str(REPO / "studies"))
+    from online_correction import Args, figure, figure_points
+
+    from panda_lead.errors import UserError
+
+    monkeypatch.chdir(tmp_path)
+    for name, offset in (("near", 0.01), ("mid", 0.03), ("far", 0.05)):
+        write_prefix(tmp_path / "rollouts", name, offset, [0, 1, 2, 3], T=120)
+    points, shared = figure_points([("A @ calm", ["near"]), ("B @ calm", ["mid", "far"]),
+                                    ("A @ rough", ["far"])], 200)
+    assert shared == [0, 1, 2, 3]
+    by = {(p["controller"], p["world"]): p for p in points}
+    assert by["A", "calm"]["err"] == pytest.approx(1.0, abs=1e-6)
+    assert by["B", "calm"]["err"] == pytest.approx(4.0, abs=1e-6)
+    assert by["B", "calm"]["sets"] == 2
+    lo, hi = by["B", "calm"]["ci"]
+    assert 3.0 - 1e-6 <= lo <= 4.0 <= hi <= 5.0 + 1e-6 and hi - lo > 0.5
+    assert by["A", "calm"]["ci"] == pytest.approx((1.0, 1.0), abs=1e-6)
+    out = tmp_path / "fig.png"
+    args = Args(command="figure", groups=["A @ calm=near", "B @ calm=mid,far"], out=out,
+                bootstrap=500)
+    figure(args)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(UserError, match="exists"):
+        figure(args)
+    with pytest.raises(UserError, match="PATH.png"):
+        figure(Args(command="figure", groups=["A=near"], out=tmp_path / "fig.jpg"))
