@@ -146,6 +146,9 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
 # the hardware model (README, "Which model for a real arm"): its share of its own oracle's gain
 HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
+# the classical controllers' sets (ikpd.py): prefix -> its flags
+BASELINES = {"classical": [], "analytic": ["--controller", "analytic"],
+             "feedforward": ["--controller", "feedforward"]}
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE, LOOPED,
                LOOPED_FT]
@@ -227,6 +230,15 @@ GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
+
+
+def online_prefixes() -> set[str]:
+    """Every rollout set the online corrections' tables may read that prepare plays: the
+    baselines, the archived policies' sets, the oracles, and each online registry's."""
+    registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
+                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES)
+    return ({p for registry in registries for p in registry} | set(POLICY_SETS)
+            | set(SEED_POLICY_SETS))
 
 
 def _condition_flags(condition: str) -> list[str]:
@@ -344,8 +356,7 @@ def prepare(root: Path) -> None:
         dirs = sorted(glob.glob(f"sweeps/{pattern}/runs", root_dir=root))
         if dirs:
             _run(root, *runs, "keep", "--study", study, "--runs", *dirs)
-    for base, extra in [("classical", []), ("analytic", ["--controller", "analytic"]),
-                        ("feedforward", ["--controller", "feedforward"])]:
+    for base, extra in BASELINES.items():
         if not (root / "rollouts" / base).is_dir():
             _run(root, "ikpd.py", "--seeds", "0-999", "--prefix", base, *extra)
     for m in [*POLICY_SETS, *(f"seeds/{m}" for m in SEED_POLICY_SETS)]:

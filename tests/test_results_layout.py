@@ -189,3 +189,16 @@ def test_a_by_selection_spread_goes_stale_on_its_own_studys_scores_only():
         assert scores, f"{study}'s spread reads no selection score"
         assert all(re.fullmatch(rf"{re.escape(study)}_s\d+\.json", Path(i).name) for i in scores)
         assert all((ROOT / i).is_file() for i in scores)
+
+
+def test_every_set_the_online_tables_read_is_one_prepare_plays():
+    """A table of studies/results_online.py that read a rollout set no registry of
+    results_prepare.py plays would stay "kept as committed" on every machine (its input never
+    made): every set it reads is registered."""
+    sys.path.insert(0, str(ROOT / "studies"))
+    from results_online import online_steps
+    from results_prepare import online_prefixes
+
+    reads = {i.removeprefix("rollouts/") for step in online_steps() for i in step.inputs
+             if i.startswith("rollouts/")}
+    assert reads and reads <= online_prefixes(), sorted(reads - online_prefixes())
