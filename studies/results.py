@@ -18,7 +18,8 @@ succeeds: a failing step leaves the committed table as it was (and the run exits
 A markdown table's first line says the command and commit that made it. Before the tables, the
 `all` section refreshes what they read (what studies/results.sh did first): each sweep's summaries, the
 archived models it chooses (only when missing) and the rollout sets, rebuilt when missing or
-played by a model other than the archived one.
+played by a model other than the archived one (or setting, for the online corrections'); with
+`--only`, just the registered rollout sets the selected steps read, and no sweep.
 """
 
 from __future__ import annotations
@@ -256,6 +257,12 @@ def build(root: Path, steps: list[Step], force: bool = False, dry_run: bool = Fa
     return 1 if failed else 0
 
 
+def _rollout_sets(steps: list[Step]) -> set[str]:
+    """The rollout-set prefixes the steps read (their inputs under rollouts/)."""
+    return {i.removeprefix("rollouts/") for step in steps for i in step.inputs
+            if i.startswith("rollouts/")}
+
+
 @exit_on_user_error
 def main(argv: list[str] | None = None) -> int:
     args = parse_cli(Args, argv, description=__doc__, prog="studies/results.py")
@@ -263,12 +270,13 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     rc = 0
     if args.section != "index":
-        if args.section == "all" and not args.dry_run and not args.only:
+        steps = select(table_steps(), args.section, args.only)
+        if args.section == "all" and not args.dry_run:
             from results_prepare import prepare
 
-            prepare(ROOT)
-        rc = build(ROOT, select(table_steps(), args.section, args.only), args.force,
-                   args.dry_run)
+            # --only: just the rollout sets the selected steps read, no sweep
+            prepare(ROOT, _rollout_sets(steps) if args.only else None)
+        rc = build(ROOT, steps, args.force, args.dry_run)
     if not args.dry_run:
         write_index(ROOT, load_manifest(ROOT))
         print("wrote results/README.md")

@@ -279,15 +279,19 @@ def _first_meta(root: Path, prefix: str) -> dict:
     return read_meta(files[0]) if files else {}
 
 
-def _online_sets(root: Path) -> None:
+def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
     """Each online set and oracle (re)played when missing, or played by another model or
-    setting than ONLINE says."""
+    setting than ONLINE says (of those ``wanted``)."""
     for prefix, model in {**ONLINE_PLAIN, **LOOPED_SEEDS}.items():
+        if not wanted(prefix):
+            continue
         want = _archived_sha(root, model)
         if want and _set_model(root, prefix) != want:
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", "--force")
     for prefix, (model, condition) in CONDITION_PLAIN.items():
+        if not wanted(prefix):
+            continue
         want = _archived_sha(root, model)
         if want and (_set_model(root, prefix) != want
                      or not _in_condition(_first_meta(root, prefix), condition)):
@@ -297,6 +301,8 @@ def _online_sets(root: Path) -> None:
               **{p: (spec, c, None) for p, (spec, c) in CONDITION_ONLINE.items()},
               **{p: (spec, c, GATE) for p, (spec, c) in GATED.items()}}
     for prefix, (spec, condition, gate) in played.items():
+        if not wanted(prefix):
+            continue
         meta, model = _first_meta(root, prefix), spec[1]
         setting = meta.get("online") or {}
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
@@ -308,6 +314,8 @@ def _online_sets(root: Path) -> None:
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
+        if not wanted(prefix):
+            continue
         ilc = _first_meta(root, prefix).get("ilc") or {}
         setting = ilc.get("start_online") or {}
         if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
@@ -333,7 +341,37 @@ def _archived_sha(root: Path, name: str) -> str | None:
     return json.loads(side.read_text()).get("model_sha256") if side.exists() else None
 
 
-def prepare(root: Path) -> None:
+def prepare(root: Path, needed: set[str] | None = None) -> None:
+    """Refresh what the tables read: the sweeps' summaries and chosen models, then every
+    registered rollout set that is missing or played by another model or setting. With
+    ``needed`` (results.py --only: the rollout sets the selected steps read), only those sets,
+    and no sweep."""
+    def wanted(prefix: str) -> bool:
+        return needed is None or prefix in needed
+
+    if needed is None:
+        _sweeps(root)
+    for base, extra in BASELINES.items():
+        if wanted(base) and not (root / "rollouts" / base).is_dir():
+            _run(root, "ikpd.py", "--seeds", "0-999", "--prefix", base, *extra)
+    for m in [*POLICY_SETS, *(f"seeds/{m}" for m in SEED_POLICY_SETS)]:
+        prefix = m.removeprefix("seeds/")
+        want = _archived_sha(root, m) if wanted(prefix) else None
+        if want and _set_model(root, prefix) != want:
+            _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
+                 f"archive/{m}.zip", "--force")
+    _online_sets(root, wanted)
+    # the oracles: 20 replays per trajectory, started from a model's lead, seeds 0-199
+    for prefix, model in ORACLES.items():
+        want = _archived_sha(root, model) if wanted(prefix) else None
+        if want and _set_model(root, prefix) != want:
+            _run(root, "ikpd.py", "--controller", "ilc", "--seeds", "0-199", "--prefix", prefix,
+                 "--model", f"archive/{model}.zip", "--force")
+
+
+def _sweeps(root: Path) -> None:
+    """Each sweep's finished runs summarized, its chosen model archived (when missing), its
+    kept seeds recorded."""
     runs = ["studies/runs.py"]
     for study in SUMMARIZED:
         for folder in [study, *EXTRA_SEEDS.get(study, [])]:
@@ -356,19 +394,3 @@ def prepare(root: Path) -> None:
         dirs = sorted(glob.glob(f"sweeps/{pattern}/runs", root_dir=root))
         if dirs:
             _run(root, *runs, "keep", "--study", study, "--runs", *dirs)
-    for base, extra in BASELINES.items():
-        if not (root / "rollouts" / base).is_dir():
-            _run(root, "ikpd.py", "--seeds", "0-999", "--prefix", base, *extra)
-    for m in [*POLICY_SETS, *(f"seeds/{m}" for m in SEED_POLICY_SETS)]:
-        prefix = m.removeprefix("seeds/")
-        want = _archived_sha(root, m)
-        if want and _set_model(root, prefix) != want:
-            _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
-                 f"archive/{m}.zip", "--force")
-    _online_sets(root)
-    # the oracles: 20 replays per trajectory, started from a model's lead, seeds 0-199
-    for prefix, model in ORACLES.items():
-        want = _archived_sha(root, model)
-        if want and _set_model(root, prefix) != want:
-            _run(root, "ikpd.py", "--controller", "ilc", "--seeds", "0-199", "--prefix", prefix,
-                 "--model", f"archive/{model}.zip", "--force")

@@ -178,6 +178,37 @@ def test_prepare_summarizes_finished_runs_and_skips_a_stopped_trial(tmp_path, mo
         capsys.readouterr().out
 
 
+def test_prepare_for_only_some_steps_plays_just_the_sets_they_read(tmp_path, monkeypatch):
+    """results.py all --only GLOB prepares the registered rollout sets its steps read and
+    nothing else (no sweep, no other set): here, on a bare root, one missing online set and a
+    missing baseline."""
+    import results_prepare
+
+    calls = []
+    monkeypatch.setattr(results_prepare, "_run", lambda root, *argv: calls.append(argv))
+    results_prepare.prepare(tmp_path, {"feedforward_repetitive_noise1", "classical"})
+    assert [c[:2] for c in calls] == [("ikpd.py", "--seeds"),
+                                      ("studies/online_correction.py", "play")]
+    play = calls[1]
+    assert play[play.index("--prefix") + 1] == "feedforward_repetitive_noise1"
+    assert play[play.index("--condition") + 1] == "noise1"
+    assert play[play.index("--base") + 1] == "feedforward"
+    calls.clear()
+    results_prepare.prepare(tmp_path, set())
+    assert calls == []
+
+
+def test_results_all_only_hands_prepare_the_sets_of_the_selected_steps(monkeypatch):
+    import results_prepare
+
+    seen = []
+    monkeypatch.setattr(results_prepare, "prepare", lambda root, needed=None: seen.append(needed))
+    monkeypatch.setattr(results, "build", lambda *a, **k: 0)
+    monkeypatch.setattr(results, "write_index", lambda *a, **k: None)
+    results.main(["all", "--only", "results/studies/online/feedforward_repetitive_noise1_vs_*"])
+    assert seen == [{"feedforward", "feedforward_repetitive_noise1"}]
+
+
 def test_a_by_selection_spread_goes_stale_on_its_own_studys_scores_only():
     # runs.py report --by selection reads <study>_s<k>.json of the selection scores; with the
     # whole scores folder as its input, every other study's new score made it stale.
