@@ -91,6 +91,9 @@ class Args:
     (m; 0: from all): the gate, the same for every setting of the tuning grid."""
     seeds: str = "0-999"
     """play: trajectory seeds (test seeds only for reported results)."""
+    duration: float = 5.0
+    """play: the episodes' length (s); every registered set and table uses 5 s, the test
+    seeds' length. Longer episodes show what the correction reaches once it has had the laps."""
     prefix: str = ""
     """play: the rollout set's name under rollouts/."""
     force: bool = False
@@ -143,13 +146,16 @@ def condition_overrides(name: str, base: str = "policy") -> dict | None:
 
 
 def _base(args: Args):
-    """The base controller on its evaluation env, 5 s episodes."""
+    """The base controller on its evaluation env, --duration s episodes (5 s: the test
+    seeds')."""
     from dataclasses import replace
 
     from panda_lead import harness
     from panda_lead.core import control_dt
 
-    steps = int(round(5.0 / control_dt()))
+    if not (np.isfinite(args.duration) and args.duration > 0):
+        raise UserError(f"--duration must be a positive number of seconds, got {args.duration}")
+    steps = int(round(args.duration / control_dt()))
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
     late = condition_overrides(args.condition, args.base)
@@ -185,6 +191,8 @@ def tune(args: Args) -> None:
     from panda_lead.online import OnlineCorrection, wrap
     from panda_lead.seeds import TUNE_SEEDS
 
+    if args.duration != Args.duration:
+        raise UserError("--duration is for play: the tuning plays the test seeds' 5 s episodes")
     ctrl = _base(args)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
@@ -242,6 +250,8 @@ def play(args: Args) -> None:
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
+        if args.duration != Args.duration:
+            raise UserError("--oracle replays the test seeds' 5 s episodes: drop --duration")
         if args.condition != "none":
             raise UserError("--oracle replays in the ideal world: drop --condition")
         if args.base == "feedforward":

@@ -312,6 +312,10 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
     ("studies/online_correction.py", ["play", "--base", "analytic", "--condition",
                                       "delay3_plan", "--prefix", "x"],
      ["delay3_plan", "only a noise condition"]),
+    ("studies/online_correction.py", ["play", "--base", "analytic", "--duration", "-1",
+                                      "--prefix", "x"], ["--duration", "positive"]),
+    ("studies/online_correction.py", ["tune", "--base", "analytic", "--duration", "10"],
+     ["--duration is for play"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the

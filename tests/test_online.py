@@ -461,3 +461,15 @@ def test_a_noise_condition_on_the_plan_aims_the_ik_at_it_and_says_so():
     assert condition_overrides("none") is None
     with pytest.raises(UserError, match="only a noise condition"):
         condition_overrides("delay3_plan")
+
+
+def test_play_duration_sets_the_episode_length():
+    """online_correction.py play --duration: the episodes' length (the registered sets keep the
+    test seeds' 5 s)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from online_correction import Args, _base
+
+    assert _base(Args(command="play", base="analytic")).config.episode_steps == 500
+    assert _base(Args(command="play", base="analytic", duration=10.0)).config.episode_steps == 1000
