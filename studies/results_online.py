@@ -129,6 +129,15 @@ def online_steps() -> list[Step]:
                       ("studies/online_correction.py", "figure", "--groups", *groups_argv,
                        "--out", "{out0}"),
                       tuple(f"rollouts/{x}" for x in dict.fromkeys(read)), section="all"))
+    # what the laps would buy: 10 s episodes, settled from 5 s (the second half), test seeds
+    # 0-199: each correction against its lead alone, and the two corrections against each other
+    late = ("--settle-time", "5")
+    steps += [_pair("hardware_10s", "hardware_repetitive_guarded_10s",
+                    f"{on}/ten_seconds_hardware_gated_vs_alone.md", *late),
+              _pair("feedforward_10s", "feedforward_repetitive_10s",
+                    f"{on}/ten_seconds_feedforward_repetitive_vs_alone.md", *late),
+              _pair("feedforward_repetitive_10s", "hardware_repetitive_guarded_10s",
+                    f"{on}/ten_seconds_hardware_gated_vs_feedforward_repetitive.md", *late)]
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",

@@ -230,13 +230,23 @@ GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
+# what the laps would buy: 10 s episodes (online_correction.py play --duration), test seeds
+# 0-199, the archived hardware model alone and with its gated correction, and the feedforward
+# rival alone and with its own: prefix -> (base, the online spec or None, its gate)
+LONG_EPISODES = {"hardware_10s": ("policy", None, None),
+                 "hardware_repetitive_guarded_10s": ("policy", ONLINE["hardware_repetitive"],
+                                                     GATE),
+                 "feedforward_10s": ("feedforward", None, None),
+                 "feedforward_repetitive_10s": ("feedforward", ONLINE["feedforward_repetitive"],
+                                                None)}
+LONG_S, LONG_SEEDS = 10.0, "0-199"
 
 
 def online_prefixes() -> set[str]:
     """Every rollout set the online corrections' tables may read that prepare plays: the
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
-                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES)
+                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -311,6 +321,7 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))):
             _play_online(root, spec, "0-999", prefix, "--condition", condition,
                          *(("--max-error", str(gate)) if gate else ()))
+    _long_episodes(root, wanted)
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
@@ -323,6 +334,33 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
                 or ilc.get("start_model_sha256") != _archived_sha(root, spec[1])):
             _play_online(root, spec, "0-199", prefix, "--oracle",
                          *(("--max-error", str(gate)) if gate else ()))
+
+
+def _long_episodes(root: Path, wanted) -> None:
+    """LONG_EPISODES' sets (re)played when missing, or played at another length, by another
+    model or with another setting."""
+    for prefix, (base, spec, gate) in LONG_EPISODES.items():
+        if not wanted(prefix):
+            continue
+        meta = _first_meta(root, prefix)
+        setting = meta.get("online") or {}
+        stale = (meta.get("duration") != LONG_S
+                 or (spec and (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
+                               or setting.get("max_error") != gate))
+                 or (base == "policy" and meta.get("model_sha256")
+                     != _archived_sha(root, HARDWARE)))
+        if not stale:
+            continue
+        length = ("--duration", str(LONG_S), "--force")
+        if spec:
+            _play_online(root, spec, LONG_SEEDS, prefix, "--duration", str(LONG_S),
+                         *(("--max-error", str(gate)) if gate else ()))
+        elif base == "policy":
+            _run(root, "eval.py", "--seeds", LONG_SEEDS, "--prefix", prefix, "--model",
+                 f"archive/{HARDWARE}.zip", *length)
+        else:
+            _run(root, "ikpd.py", "--controller", base, "--seeds", LONG_SEEDS, "--prefix",
+                 prefix, *length)
 
 
 def _run(root: Path, *argv: str) -> None:

@@ -97,9 +97,10 @@ def _compare(study: str, against: str) -> Step:
                 _runs(study, against), stdout=True)
 
 
-def _pair(a: str, b: str, out: str) -> Step:
-    """metrics.py's paired table, B against A, from the rollout sets of the test seeds."""
-    return Step((out,), ("metrics.py", "--prefix-a", a, "--prefix-b", b, "--breakdown",
+def _pair(a: str, b: str, out: str, *extra: str) -> Step:
+    """metrics.py's paired table, B against A, from the rollout sets of the test seeds (with
+    metrics.py's ``extra`` flags)."""
+    return Step((out,), ("metrics.py", "--prefix-a", a, "--prefix-b", b, "--breakdown", *extra,
                          "--markdown"), (f"rollouts/{a}", f"rollouts/{b}"), stdout=True,
                 per_seed_dropped=True, section="all")
 

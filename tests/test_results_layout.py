@@ -198,6 +198,26 @@ def test_prepare_for_only_some_steps_plays_just_the_sets_they_read(tmp_path, mon
     assert calls == []
 
 
+def test_the_long_episode_sets_are_played_at_their_length(tmp_path, monkeypatch):
+    """The 10 s sets (results_prepare.LONG_EPISODES) on a bare root: each played once, at 10 s
+    on test seeds 0-199, the corrected ones with their settings and gate."""
+    import results_prepare
+
+    calls = []
+    monkeypatch.setattr(results_prepare, "_run", lambda root, *argv: calls.append(argv))
+    monkeypatch.setattr(results_prepare, "_archived_sha", lambda root, name: "sha")
+    results_prepare.prepare(tmp_path, set(results_prepare.LONG_EPISODES))
+    played = {c[c.index("--prefix") + 1]: c for c in calls}
+    assert set(played) == set(results_prepare.LONG_EPISODES) and len(calls) == 4
+    for prefix, argv in played.items():
+        assert argv[argv.index("--duration") + 1] == "10.0"
+        assert argv[argv.index("--seeds") + 1] == "0-199"
+    gated = played["hardware_repetitive_guarded_10s"]
+    assert gated[gated.index("--max-error") + 1] == "0.05" and "--model" in gated
+    assert "--max-error" not in played["feedforward_repetitive_10s"]
+    assert played["feedforward_10s"][:3] == ("ikpd.py", "--controller", "feedforward")
+
+
 def test_results_all_only_hands_prepare_the_sets_of_the_selected_steps(monkeypatch):
     import results_prepare
 
