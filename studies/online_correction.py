@@ -115,6 +115,9 @@ class Args:
     """summary: each pair's two sets come from one training seed's model (one model with and
     without the correction, or two continuations of one model): print a seed-paired CI (the
     seeds drawn once for both sides) beside the conservative one."""
+    settle_time: float = 0.5
+    """summary: the settled error is the mean from this time on (s; 5 for the second half of
+    10 s episodes)."""
     names: tuple[str, str] = ("plain", "with the correction")
     """summary: what the two sides of each pair are, for the table (e.g. "added after
     training" "trained with it")."""
@@ -269,12 +272,12 @@ def play(args: Args) -> None:
     print(f"wrote {n} rollouts to {ROLLOUT_DIR / args.prefix}/")
 
 
-def _set_metrics(prefix: str) -> dict[int, dict[str, float]]:
+def _set_metrics(prefix: str, settle_time: float = 0.5) -> dict[int, dict[str, float]]:
     from panda_lead.metrics.pairing import charged, load_set
     from panda_lead.metrics.stats import rollout_metrics
     from panda_lead.rollout import ROLLOUT_DIR
 
-    return {seed: rollout_metrics(charged(r)[0]) for seed, r in
+    return {seed: rollout_metrics(charged(r)[0], settle_time) for seed, r in
             load_set(prefix, ROLLOUT_DIR).items()}
 
 
@@ -286,15 +289,19 @@ def summary(args: Args) -> None:
         raise UserError("summary needs --pairs PLAIN:CORRECTED ... (rollout-set prefixes)")
     if any(not n.strip() for n in args.names):
         raise UserError("summary --names needs two non-empty names")
-    sets = [tuple(_set_metrics(x) for x in p.split(":")) for p in args.pairs]
+    if not (np.isfinite(args.settle_time) and args.settle_time >= 0):
+        raise UserError(f"--settle-time must be >= 0 s, got {args.settle_time}")
+    sets = [tuple(_set_metrics(x, args.settle_time) for x in p.split(":")) for p in args.pairs]
     seeds = sorted(set.intersection(*(set(a) & set(b) for a, b in sets)))
     if not seeds:
         raise UserError("the pairs' rollout sets share no trajectory seed")
     a_name, b_name = args.names
     named = "" if args.names == Args.names else " --names " + shlex.join(args.names)
     flags = named + (" --paired-seeds" if args.paired_seeds else "")
+    flags += f" --settle-time {args.settle_time:g}" if args.settle_time != Args.settle_time else ""
     print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}{flags}`: "
-          f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from 0.5 s; "
+          f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from "
+          f"{args.settle_time:g} s; "
           + ("the corrected minus the plain set" if not named else f"{b_name} minus {a_name}")
           + ".\n")
     print(f"| pair | mean error, {a_name} | {b_name} | settled, {a_name} | {b_name} | "

@@ -138,6 +138,16 @@ def online_steps() -> list[Step]:
                     f"{on}/ten_seconds_feedforward_repetitive_vs_alone.md", *late),
               _pair("feedforward_repetitive_10s", "hardware_repetitive_guarded_10s",
                     f"{on}/ten_seconds_hardware_gated_vs_feedforward_repetitive.md", *late)]
+    # ... and the hardware study's five seeds: gated against alone, and against the rival
+    study = ("--settle-time", "5")
+    steps += [_summary(f"{on}/ten_seconds_late100_gated.md",
+                       [(f"{p}_10s", f"{p}_repetitive_guarded_10s") for p in late100],
+                       ("alone", "gated"), paired=True, extra=study),
+              _summary(f"{on}/ten_seconds_late100_gated_vs_feedforward_repetitive.md",
+                       [("feedforward_repetitive_10s", f"{p}_repetitive_guarded_10s")
+                        for p in late100],
+                       ("feedforward + correction", "hardware lead + gated correction"),
+                       extra=study)]
     steps.append(Step((f"{on}/excursions.md",),
                       ("studies/online_correction.py", "excursions", "--groups", *groups),
                       tuple(f"rollouts/{x}" for x in (*sets, "feedforward",

@@ -231,14 +231,19 @@ ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
 # what the laps would buy: 10 s episodes (online_correction.py play --duration), test seeds
-# 0-199, the archived hardware model alone and with its gated correction, and the feedforward
-# rival alone and with its own: prefix -> (base, the online spec or None, its gate)
-LONG_EPISODES = {"hardware_10s": ("policy", None, None),
-                 "hardware_repetitive_guarded_10s": ("policy", ONLINE["hardware_repetitive"],
-                                                     GATE),
-                 "feedforward_10s": ("feedforward", None, None),
-                 "feedforward_repetitive_10s": ("feedforward", ONLINE["feedforward_repetitive"],
-                                                None)}
+# 0-199, the archived hardware model and its study's five seeds alone and with the gated
+# correction, and the feedforward rival alone and with its own: prefix -> (base, archived model
+# or None, the online spec or None, its gate)
+LONG_EPISODES = {
+    "hardware_10s": ("policy", HARDWARE, None, None),
+    "hardware_repetitive_guarded_10s": ("policy", HARDWARE, ONLINE["hardware_repetitive"], GATE),
+    **{f"late100_s{k}_10s": ("policy", f"seeds/{LATE100}_s{k}", None, None)
+       for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_guarded_10s": ("policy", f"seeds/{LATE100}_s{k}",
+                                                ONLINE[f"late100_s{k}_repetitive"], GATE)
+       for k in range(1, 6)},
+    "feedforward_10s": ("feedforward", None, None, None),
+    "feedforward_repetitive_10s": ("feedforward", None, ONLINE["feedforward_repetitive"], None)}
 LONG_S, LONG_SEEDS = 10.0, "0-199"
 
 
@@ -339,7 +344,7 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
 def _long_episodes(root: Path, wanted) -> None:
     """LONG_EPISODES' sets (re)played when missing, or played at another length, by another
     model or with another setting."""
-    for prefix, (base, spec, gate) in LONG_EPISODES.items():
+    for prefix, (base, model, spec, gate) in LONG_EPISODES.items():
         if not wanted(prefix):
             continue
         meta = _first_meta(root, prefix)
@@ -347,8 +352,7 @@ def _long_episodes(root: Path, wanted) -> None:
         stale = (meta.get("duration") != LONG_S
                  or (spec and (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
                                or setting.get("max_error") != gate))
-                 or (base == "policy" and meta.get("model_sha256")
-                     != _archived_sha(root, HARDWARE)))
+                 or (model and meta.get("model_sha256") != _archived_sha(root, model)))
         if not stale:
             continue
         length = ("--duration", str(LONG_S), "--force")
@@ -357,7 +361,7 @@ def _long_episodes(root: Path, wanted) -> None:
                          *(("--max-error", str(gate)) if gate else ()))
         elif base == "policy":
             _run(root, "eval.py", "--seeds", LONG_SEEDS, "--prefix", prefix, "--model",
-                 f"archive/{HARDWARE}.zip", *length)
+                 f"archive/{model}.zip", *length)
         else:
             _run(root, "ikpd.py", "--controller", base, "--seeds", LONG_SEEDS, "--prefix",
                  prefix, *length)

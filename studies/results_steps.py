@@ -106,12 +106,13 @@ def _pair(a: str, b: str, out: str, *extra: str) -> Step:
 
 
 def _summary(out: str, pairs: list[tuple[str, str]], names: tuple[str, str] | None = None,
-             paired: bool = False) -> Step:
+             paired: bool = False, extra: tuple[str, ...] = ()) -> Step:
     """online_correction.py summary's table of a five-seed study's pairs of rollout sets (A, B)
-    on the test seeds, B minus A with a two-level bootstrap (and a seed-paired one)."""
+    on the test seeds, B minus A with a two-level bootstrap (and a seed-paired one; ``extra``:
+    its other flags)."""
     argv = ("studies/online_correction.py", "summary", "--pairs",
             *(f"{a}:{b}" for a, b in pairs), *(("--names", *names) if names else ()),
-            *(("--paired-seeds",) if paired else ()))
+            *(("--paired-seeds",) if paired else ()), *extra)
     inputs = tuple(dict.fromkeys(f"rollouts/{x}" for pair in pairs for x in pair))
     return Step((out,), argv, inputs, stdout=True, section="all")
 

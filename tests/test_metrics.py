@@ -806,3 +806,31 @@ def test_the_figure_puts_each_group_at_its_sets_mean_and_refuses_bad_output(tmp_
         figure(args)
     with pytest.raises(UserError, match="PATH.png"):
         figure(Args(command="figure", groups=["A=near"], out=tmp_path / "fig.jpg"))
+
+
+def test_summary_settles_from_the_time_it_is_given(tmp_path, monkeypatch, capsys):
+    """online_correction.py summary --settle-time: the settled error is the mean from that
+    time on (here a tip 2 cm off that closes to 1 cm at 5 s), said in the header and in the
+    command it prints (a table must rerun as printed); a negative time is refused."""
+    sys.path.insert(0, str(REPO / "studies"))
+    from online_correction import Args, summary
+
+    from panda_lead.errors import UserError
+
+    monkeypatch.chdir(tmp_path)
+    for seed in (0, 1, 2):
+        shape = "circle" if seed % 2 == 0 else "fig8"
+        t = DT * np.arange(1, 601)
+        target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
+        off = np.where(t < 5.0, 0.02, 0.01)[:, None] * [1.0, 0.0, 0.0]
+        for prefix, tip in (("a", target + [0.02, 0.0, 0.0]), ("b", target + off)):
+            r = on_its_trajectory(make_rollout(tip, target, seed=seed, shape=shape))
+            rollout.save(r, rollout.rollout_path(prefix, seed, tmp_path / "rollouts"))
+    summary(Args(command="summary", pairs=["a:b", "a:b"], settle_time=5.0, bootstrap=200))
+    out = capsys.readouterr().out
+    assert "summary --pairs a:b a:b --settle-time 5`" in out and "settled from 5 s" in out
+    assert "| a:b | 2.000 | 1.832 | 2.000 | 1.000 | -1.000 |" in out
+    summary(Args(command="summary", pairs=["a:b", "a:b"], bootstrap=200))
+    assert "| a:b | 2.000 | 1.832 | 2.000 | 1.817 | -0.183 |" in capsys.readouterr().out
+    with pytest.raises(UserError, match="--settle-time"):
+        summary(Args(command="summary", pairs=["a:b"], settle_time=-1.0))

@@ -208,14 +208,17 @@ def test_the_long_episode_sets_are_played_at_their_length(tmp_path, monkeypatch)
     monkeypatch.setattr(results_prepare, "_archived_sha", lambda root, name: "sha")
     results_prepare.prepare(tmp_path, set(results_prepare.LONG_EPISODES))
     played = {c[c.index("--prefix") + 1]: c for c in calls}
-    assert set(played) == set(results_prepare.LONG_EPISODES) and len(calls) == 4
-    for prefix, argv in played.items():
+    assert set(played) == set(results_prepare.LONG_EPISODES)
+    assert len(calls) == len(results_prepare.LONG_EPISODES)
+    for argv in played.values():
         assert argv[argv.index("--duration") + 1] == "10.0"
         assert argv[argv.index("--seeds") + 1] == "0-199"
     gated = played["hardware_repetitive_guarded_10s"]
     assert gated[gated.index("--max-error") + 1] == "0.05" and "--model" in gated
     assert "--max-error" not in played["feedforward_repetitive_10s"]
     assert played["feedforward_10s"][:3] == ("ikpd.py", "--controller", "feedforward")
+    seed = played["late100_s3_repetitive_guarded_10s"]
+    assert seed[seed.index("--model") + 1].endswith("finetuned_late100_5m_s3.zip")
 
 
 def test_results_all_only_hands_prepare_the_sets_of_the_selected_steps(monkeypatch):
