@@ -368,8 +368,15 @@ def _long_episodes(root: Path, wanted) -> None:
 
 
 def _run(root: Path, *argv: str) -> None:
+    """Run one of the repo's scripts; if it fails (its own message printed above: a set
+    another run is playing, a missing model), stop with one line naming it."""
+    from panda_lead.errors import UserError
+
     print("run: uv run " + " ".join(argv), flush=True)
-    subprocess.run([sys.executable, *argv], cwd=root, check=True)
+    rc = subprocess.run([sys.executable, *argv], cwd=root).returncode
+    if rc:
+        raise UserError(f"preparing the tables' inputs: `uv run {' '.join(argv[:3])} ...` "
+                        f"exited {rc} (its message is above)")
 
 
 def _set_model(root: Path, prefix: str) -> str | None:

@@ -198,6 +198,19 @@ def test_prepare_for_only_some_steps_plays_just_the_sets_they_read(tmp_path, mon
     assert calls == []
 
 
+def test_a_failing_preparation_step_is_one_line_naming_it(tmp_path):
+    """A script prepare runs that fails (another run playing the same set holds its lock, say)
+    stops the run with one line naming it, not a traceback of subprocess's."""
+    import results_prepare
+
+    from panda_lead.errors import UserError
+
+    (tmp_path / "fails.py").write_text("import sys\nprint('the reason')\nsys.exit(2)\n")
+    with pytest.raises(UserError, match=r"`uv run fails.py --seeds 0-9 \.\.\.` exited 2"):
+        results_prepare._run(tmp_path, "fails.py", "--seeds", "0-9", "--prefix", "x")
+    results_prepare._run(tmp_path, "-c", "pass")  # a success says nothing
+
+
 def test_the_long_episode_sets_are_played_at_their_length(tmp_path, monkeypatch):
     """The 10 s sets (results_prepare.LONG_EPISODES) on a bare root: each played once, at 10 s
     on test seeds 0-199, the corrected ones with their settings and gate."""
