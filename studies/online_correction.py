@@ -369,18 +369,11 @@ def excursions(args: Args) -> None:
         print(f"| {label} | {episodes} | {far} | {touched} |")
 
 
-def _mean_ci(values: np.ndarray, rng, n_boot: int) -> tuple[float, float]:
-    """95% CI of the mean of (sets, trajectories) values: sets (training seeds) and
-    trajectories resampled, the same trajectories for every set drawn (two levels)."""
-    n_sets, n_traj = values.shape
-    means = [values[rng.integers(0, n_sets, n_sets)][:, rng.integers(0, n_traj, n_traj)].mean()
-             for _ in range(n_boot)]
-    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
-
-
 def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:
     """Each group's point (controller, world, settled error with its two-level CI, jerk, number
     of sets) over the trajectories its sets share, and the seeds every group shares."""
+    from panda_lead.metrics.stats import two_level_bootstrap
+
     rng, points, shared = np.random.default_rng(0), [], None
     for label, prefixes in groups:
         controller, _, world = (x.strip() for x in label.partition(" @ "))
@@ -392,7 +385,9 @@ def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[lis
         settled, jerk = (np.array([[m[k][key] for k in seeds] for m in sets])
                          for key in ("settled_err", "jerk_rms"))
         points.append(dict(controller=controller, world=world or "ideal world",
-                           err=float(settled.mean()), ci=_mean_ci(settled, rng, n_boot),
+                           # the level's CI: its difference from a study that is all zeros
+                           err=float(settled.mean()), ci=two_level_bootstrap(
+                               np.zeros((1, len(seeds))), settled, n_boot, rng)[0],
                            jerk=float(jerk.mean()), sets=len(sets)))
     return points, shared or []
 

@@ -279,8 +279,17 @@ def _in_condition(meta: dict, condition: str, base: str = "policy") -> bool:
     return all(env.get(k, {} if k == "obs_noise" else 0) == v for k, v in want.items())
 
 
-def _play_online(root: Path, spec: tuple, seeds: str, prefix: str, *extra: str) -> None:
+def _other_setting(setting: dict, spec: tuple, gate: float | None) -> bool:
+    """Whether a set's recorded correction (its meta's "online", or an oracle's start) is not
+    ``spec``'s setting with ``gate``."""
+    return (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
+            or setting.get("max_error") != gate)
+
+
+def _play_online(root: Path, spec: tuple, seeds: str, prefix: str, *extra: str,
+                 gate: float | None = None) -> None:
     base, model, kind, gain, advance, smooth = spec
+    extra += ("--max-error", str(gate)) if gate else ()
     with_model = ["--model", f"archive/{model}.zip"] if model else []
     _run(root, "studies/online_correction.py", "play", "--base", base, *with_model, "--kind",
          kind, "--gain", str(gain), "--advance", str(advance), "--smooth", str(smooth),
@@ -319,13 +328,10 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
         if not wanted(prefix):
             continue
         meta, model = _first_meta(root, prefix), spec[1]
-        setting = meta.get("online") or {}
-        if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or setting.get("max_error") != gate
+        if (_other_setting(meta.get("online") or {}, spec, gate)
                 or not _in_condition(meta, condition, spec[0])
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))):
-            _play_online(root, spec, "0-999", prefix, "--condition", condition,
-                         *(("--max-error", str(gate)) if gate else ()))
+            _play_online(root, spec, "0-999", prefix, "--condition", condition, gate=gate)
     _long_episodes(root, wanted)
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
@@ -333,12 +339,9 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
         if not wanted(prefix):
             continue
         ilc = _first_meta(root, prefix).get("ilc") or {}
-        setting = ilc.get("start_online") or {}
-        if (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                or setting.get("max_error") != gate
+        if (_other_setting(ilc.get("start_online") or {}, spec, gate)
                 or ilc.get("start_model_sha256") != _archived_sha(root, spec[1])):
-            _play_online(root, spec, "0-199", prefix, "--oracle",
-                         *(("--max-error", str(gate)) if gate else ()))
+            _play_online(root, spec, "0-199", prefix, "--oracle", gate=gate)
 
 
 def _long_episodes(root: Path, wanted) -> None:
@@ -348,17 +351,14 @@ def _long_episodes(root: Path, wanted) -> None:
         if not wanted(prefix):
             continue
         meta = _first_meta(root, prefix)
-        setting = meta.get("online") or {}
         stale = (meta.get("duration") != LONG_S
-                 or (spec and (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-                               or setting.get("max_error") != gate))
+                 or (spec and _other_setting(meta.get("online") or {}, spec, gate))
                  or (model and meta.get("model_sha256") != _archived_sha(root, model)))
         if not stale:
             continue
         length = ("--duration", str(LONG_S), "--force")
         if spec:
-            _play_online(root, spec, LONG_SEEDS, prefix, "--duration", str(LONG_S),
-                         *(("--max-error", str(gate)) if gate else ()))
+            _play_online(root, spec, LONG_SEEDS, prefix, "--duration", str(LONG_S), gate=gate)
         elif base == "policy":
             _run(root, "eval.py", "--seeds", LONG_SEEDS, "--prefix", prefix, "--model",
                  f"archive/{model}.zip", *length)
