@@ -35,7 +35,7 @@ import shlex
 import subprocess
 import sys
 from dataclasses import dataclass, field
-from itertools import cycle
+from itertools import cycle, pairwise
 from pathlib import Path
 from typing import Literal
 
@@ -49,11 +49,13 @@ from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions", "figure"]]
+    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions", "figure",
+                                          "windows"]]
     """tune: the grid on the tuning seeds; play: one setting as a rollout set; summary: a
     five-seed study's sets with and without a correction (--pairs); excursions: the rare large
     errors and self-collisions of groups of sets (--groups); figure: settled error against jerk,
-    one point per group of sets (--groups, --out)."""
+    one point per group of sets (--groups, --out); windows: per shape, each group's mean error
+    in consecutive windows of the episode, and the shape's lap times (--groups, --window)."""
     base: Literal["policy", "analytic", "feedforward"] = "policy"
     """The lead the correction adds to: a PPO model (--model), the analytic lead, or none on
     top of the model-based feedforward rival (EnvConfig.feedforward: the correction is then
@@ -111,6 +113,8 @@ class Args:
     per world, a controller's worlds joined)."""
     out: Path | None = None
     """figure: the PNG to write."""
+    window: float = 0.5
+    """windows: their width (s), from 0.5 s (after the swing from home) to the episode's end."""
     paired_seeds: bool = False
     """summary: each pair's two sets come from one training seed's model (one model with and
     without the correction, or two continuations of one model): print a seed-paired CI (the
@@ -437,10 +441,46 @@ def figure(args: Args) -> None:
     print(f"wrote {args.out}")
 
 
+def windows(args: Args) -> None:
+    """Per shape, each group's mean tracking error (cm) in consecutive windows from 0.5 s, over
+    the trajectory seeds all groups share (a group of several sets: their mean), and the lap
+    times of that shape's trajectories there: where in the episode a correction's gain comes."""
+    from panda_lead import trajectory
+    from panda_lead.metrics.pairing import load_set, seed_set_title
+    from panda_lead.rollout import ROLLOUT_DIR
+
+    groups = _groups(args)
+    if not (np.isfinite(args.window) and args.window > 0):
+        raise UserError(f"--window must be a positive number of seconds, got {args.window}")
+    sets = {label: [load_set(p, ROLLOUT_DIR) for p in prefixes] for label, prefixes in groups}
+    seeds = sorted(set.intersection(*(set(s) for group in sets.values() for s in group)))
+    if not seeds:
+        raise UserError("windows: the groups' sets share no trajectory seed")
+    first = next(iter(sets.values()))[0]
+    end = min(min(s[k].t[-1] for k in seeds) for group in sets.values() for s in group)
+    edges = np.arange(0.5, end + 1e-9, args.window)
+    print(f"`uv run studies/online_correction.py windows --groups {shlex.join(args.groups)}"
+          f"{'' if args.window == Args.window else f' --window {args.window:g}'}`: "
+          f"{seed_set_title(seeds, 'trajectories')}; mean tracking error (cm) per window.\n")
+    for shape in sorted({first[k].shape for k in seeds}):
+        mine = [k for k in seeds if first[k].shape == shape]
+        laps = np.array([trajectory.sample(k, shape).params["lap_time"] for k in mine])
+        print(f"**{shape}** ({len(mine)} trajectories; lap time median {np.median(laps):.2f} s, "
+              f"{np.mean(laps <= 2.5):.0%} within 2.5 s)\n")
+        print("| group | " + " | ".join(f"{a:g}-{b:g} s" for a, b in pairwise(edges))
+              + " |\n|---|" + "---|" * (len(edges) - 1))
+        for label, group in sets.items():
+            cells = [np.mean([100 * s[k].error[(s[k].t >= a) & (s[k].t < b)].mean()
+                              for s in group for k in mine])
+                     for a, b in pairwise(edges)]
+            print(f"| {label} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
+        print()
+
+
 def main() -> None:
     args = parse_cli(Args, description=__doc__)
     {"tune": tune, "play": play, "summary": summary, "excursions": excursions,
-     "figure": figure}[args.command](args)
+     "figure": figure, "windows": windows}[args.command](args)
 
 
 if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2

@@ -834,3 +834,33 @@ def test_summary_settles_from_the_time_it_is_given(tmp_path, monkeypatch, capsys
     assert "| a:b | 2.000 | 1.832 | 2.000 | 1.817 | -0.183 |" in capsys.readouterr().out
     with pytest.raises(UserError, match="--settle-time"):
         summary(Args(command="summary", pairs=["a:b"], settle_time=-1.0))
+
+
+def test_windows_average_each_groups_error_per_shape_and_window(tmp_path, monkeypatch, capsys):
+    """online_correction.py windows: per shape, a group's mean error in each window from 0.5 s
+    (here a tip 2 cm off that closes to 1 cm at 1.5 s, beside one 3 cm off), a group of two sets
+    their mean, and the shape's lap times; a window that is not positive is refused."""
+    sys.path.insert(0, str(REPO / "studies"))
+    from online_correction import Args, windows
+
+    from panda_lead import trajectory
+    from panda_lead.errors import UserError
+
+    monkeypatch.chdir(tmp_path)
+    for seed in (0, 1, 2):
+        shape = "circle" if seed % 2 == 0 else "fig8"
+        t = DT * np.arange(1, 201)
+        target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
+        off = np.where(t < 1.5, 0.02, 0.01)[:, None] * [1.0, 0.0, 0.0]
+        for prefix, tip in (("closing", target + off), ("far", target + [0.03, 0.0, 0.0])):
+            r = on_its_trajectory(make_rollout(tip, target, seed=seed, shape=shape))
+            rollout.save(r, rollout.rollout_path(prefix, seed, tmp_path / "rollouts"))
+    windows(Args(command="windows", groups=["closing=closing", "both=closing,far"]))
+    out = capsys.readouterr().out
+    laps = [trajectory.sample(k, "circle").params["lap_time"] for k in (0, 2)]
+    assert f"**circle** (2 trajectories; lap time median {np.median(laps):.2f} s" in out
+    assert "| group | 0.5-1 s | 1-1.5 s | 1.5-2 s |" in out
+    assert out.count("| closing | 2.00 | 2.00 | 1.00 |") == 2  # circle and fig8
+    assert out.count("| both | 2.50 | 2.50 | 2.00 |") == 2
+    with pytest.raises(UserError, match="--window"):
+        windows(Args(command="windows", groups=["closing=closing"], window=0.0))
