@@ -26,7 +26,8 @@ charged as metrics.py charges them. ``excursions`` counts, per group of sets, th
 tip is ever more than 30 cm off after the first second, and those with a self-collision: what a
 mean error hides (results/studies/online/excursions.md). ``figure`` draws settled error against
 tip jerk, one point per group of sets (labelled CONTROLLER @ WORLD), with two-level 95% CIs:
-results/studies/online/planned_path.png.
+results/studies/online/planned_path.png. ``windows`` prints, per shape, each group's mean error
+in consecutive windows of the episode and the shape's lap times (results/studies/online/windows.md).
 """
 
 from __future__ import annotations
@@ -94,8 +95,9 @@ class Args:
     seeds: str = "0-999"
     """play: trajectory seeds (test seeds only for reported results)."""
     duration: float = 5.0
-    """play: the episodes' length (s); every registered set and table uses 5 s, the test
-    seeds' length. Longer episodes show what the correction reaches once it has had the laps."""
+    """play: the episodes' length (s); 5 s is the test seeds' length, and every result but the
+    10 s check's (results_prepare.LONG_EPISODES: what the correction reaches once it has had the
+    laps) uses it."""
     prefix: str = ""
     """play: the rollout set's name under rollouts/."""
     force: bool = False
