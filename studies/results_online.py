@@ -140,7 +140,7 @@ def online_steps() -> list[Step]:
                     f"{on}/ten_seconds_hardware_gated_vs_feedforward_repetitive.md", *late)]
     # where in the episode the gain comes, per shape: 0.5 s windows of the study's seed 1 alone
     # and gated beside the oracle (5 s, test seeds 0-199), and of the 10 s sets
-    for out, groups in (("windows", ["seed 1 alone=late100_s1",
+    for out, shown in (("windows", ["seed 1 alone=late100_s1",
                                      "seed 1 gated=late100_s1_repetitive_guarded",
                                      "oracle, from the archived model gated="
                                      "ilc_hardware_repetitive_guarded"]),
@@ -150,8 +150,8 @@ def online_steps() -> list[Step]:
                             "feedforward alone=feedforward_10s",
                             "feedforward + correction=feedforward_repetitive_10s"])):
         steps.append(Step((f"{on}/{out}.md",),
-                          ("studies/online_correction.py", "windows", "--groups", *groups),
-                          tuple(f"rollouts/{g.split('=')[1]}" for g in groups), stdout=True,
+                          ("studies/online_correction.py", "windows", "--groups", *shown),
+                          tuple(f"rollouts/{g.split('=')[1]}" for g in shown), stdout=True,
                           section="all"))
     # ... and the hardware study's five seeds: gated against alone, and against the rival
     study = ("--settle-time", "5")

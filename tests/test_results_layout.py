@@ -269,3 +269,20 @@ def test_every_set_the_online_tables_read_is_one_prepare_plays():
     reads = {i.removeprefix("rollouts/") for step in online_steps() for i in step.inputs
              if i.startswith("rollouts/")}
     assert reads and reads <= online_prefixes(), sorted(reads - online_prefixes())
+
+
+def test_the_excursions_table_counts_the_studys_sets_in_every_world():
+    """excursions.md groups the hardware study's five seeds alone, corrected and gated, in each
+    world, and the rival's sets (a later step once reused its variable and handed it the 10 s
+    sets instead: results.py --dry-run said "made by another command")."""
+    from results_online import online_steps
+
+    (step,) = [s for s in online_steps() if s.outs[0].endswith("/excursions.md")]
+    counted = {p for g in step.argv[step.argv.index("--groups") + 1:]
+               for p in g.split("=")[1].split(",")}
+    assert {i.removeprefix("rollouts/") for i in step.inputs} == counted  # reads what it counts
+    for world in ("", "_delay3", "_noise1", "_noise1_plan"):
+        for mid in ("", "_repetitive", "_repetitive_guarded"):
+            assert f"late100_s3{mid}{world}" in counted
+    assert {"feedforward", "feedforward_repetitive_noise1"} <= counted
+    assert not [p for p in counted if p.endswith("_10s")]
