@@ -92,6 +92,10 @@ class Args:
     max_error: float = 0.0
     """tune and play: the repetitive correction does not learn from errors farther than this
     (m; 0: from all): the gate, the same for every setting of the tuning grid."""
+    clearance: float = 0.0
+    """tune and play: the collision-aware IK's clearance (m; --env.ik.clearance, clearance.py),
+    for the lead and the rival alike; 0: the plain IK. The correction acts on the target the IK
+    aims at, so the IK's damper still has the last word on every joint step."""
     seeds: str = "0-999"
     """play: trajectory seeds (test seeds only for reported results)."""
     duration: float = 5.0
@@ -168,6 +172,10 @@ def _base(args: Args):
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
     late = condition_overrides(args.condition, args.base)
+    if not (np.isfinite(args.clearance) and args.clearance >= 0):
+        raise UserError(f"--clearance must be a distance >= 0 (m), got {args.clearance}")
+    if args.clearance:
+        late = {**(late or {}), "ik": {"clearance": args.clearance}}
     if args.base == "analytic":
         return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
@@ -210,6 +218,7 @@ def tune(args: Args) -> None:
     given = f" --model {args.model}" if args.model is not None else ""
     given += f" --condition {args.condition}" if args.condition != "none" else ""
     given += f" --max-error {args.max_error:g}" if args.max_error else ""
+    given += f" --clearance {args.clearance:g}" if args.clearance else ""
     grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
                          for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
                          if getattr(args, name) != getattr(Args, name))
@@ -263,6 +272,8 @@ def play(args: Args) -> None:
             raise UserError("--oracle replays the test seeds' 5 s episodes: drop --duration")
         if args.condition != "none":
             raise UserError("--oracle replays in the ideal world: drop --condition")
+        if args.clearance:
+            raise UserError("--oracle replays with the plain IK: drop --clearance")
         if args.base == "feedforward":
             raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
                             "env; the feedforward base has none (its oracle is not built)")
@@ -336,9 +347,12 @@ def summary(args: Args) -> None:
                                          paired=True)
             paired = (f"; seed-paired [{pci[0]:+.3f}, {pci[1]:+.3f}] "
                       f"{'shown' if shown(pci) else 'not shown'}")
-        print(f"- {label}: {a_name} {per_seed[0].mean():.3f} +- {per_seed[0].std(ddof=1):.3f}, "
-              f"{b_name} {per_seed[1].mean():.3f} +- {per_seed[1].std(ddof=1):.3f} (mean "
-              f"+- std over the {len(sets)} seeds); diff {diff:+.3f} [{ci[0]:+.3f}, "
+        spread = [f" +- {x.std(ddof=1):.3f}" if len(x) > 1 else "" for x in per_seed]
+        over = (f"mean +- std over the {len(sets)} seeds" if len(sets) > 1
+                else "one seed: no spread")  # (one pair: a std over one value is undefined)
+        print(f"- {label}: {a_name} {per_seed[0].mean():.3f}{spread[0]}, "
+              f"{b_name} {per_seed[1].mean():.3f}{spread[1]} ({over}); "
+              f"diff {diff:+.3f} [{ci[0]:+.3f}, "
               f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}{paired}")
 
 
