@@ -160,6 +160,7 @@ class ArmBatch:
         self._jac_arm_t = self._jac_arm.transpose(0, 2, 1)
         self._old_tip = np.zeros((n, 3))
         self._scratch = None  # a second batch for IK iterations away from the measured q
+        self._scratch_clearance = None  # ... and its collision-aware IK (ik.clearance only)
         self.target_pos = self.target_vel = self.target_acc = None
         self._fine_pos = None  # the target at every substep (substep_ik only)
         self.reset()
@@ -207,6 +208,11 @@ class ArmBatch:
                                                nthread=self.batch.nthread, persistent=True)
             self._scratch_qpos = self._scratch.bind("qpos")
             self._scratch_tip = self._scratch.bind("site_xpos")[:, self._tip]
+            # The collision-aware IK away from the measured angles (a planned joint path, the
+            # feedforward rival's) reads the capsules where q puts them, not where the arm is.
+            self._scratch_clearance = (Clearance(self.model, self._scratch, N_JOINTS,
+                                                 self.ik_config.clearance)
+                                       if self.ik_config.clearance > 0 else None)
         self._scratch_qpos[:, :N_JOINTS] = q
         self._scratch.forward(stage=mujoco.mjtStage.mjSTAGE_POS)
         jac, _ = self._scratch.jac(self._tip_body, self._scratch_tip)
@@ -311,17 +317,20 @@ class ArmBatch:
     def ik(self, target: np.ndarray, q0: np.ndarray | None = None, iters: int | None = None
            ) -> np.ndarray:
         """DLS IK for every arm's tip, (N, 3) targets -> (N, 7) joint goals, warm-started from
-        q0 (default: the measured angles, whose kinematics are current)."""
+        q0 (default: the measured angles, whose kinematics are current). Under ik.clearance
+        every iteration's step is projected with the capsules where that iteration starts."""
         cfg = self.ik_config
         iters = cfg.iters if iters is None else iters
         q = (self.qpos if q0 is None else np.broadcast_to(q0, (self.n, N_JOINTS))).copy()
         for i in range(iters):
             if i == 0 and q0 is None:
                 jac, jac_t, tip = self._jac_arm, self._jac_arm_t, self.tip_pos
+                clearance = self._clearance
             else:
                 jac, tip = self._kinematics_at(q)
                 jac = jac[:, :, :N_JOINTS]
                 jac_t = jac.transpose(0, 2, 1)
+                clearance = self._scratch_clearance
             # Damped step J^T (J J^T + l^2 I)^-1 e, and the posture pull projected by the exact
             # null-space projector I - J^T (J J^T)^-1 J (a damped projector would leak the pull
             # into the tip position and bias the solution by centimetres near singularities).
@@ -339,8 +348,8 @@ class ArmBatch:
                 dq += pull - steps[:, 1, :, 0]
             else:
                 dq = (jac_t @ np.linalg.solve(jjt + self._damp3, rhs[:, 0]))[:, :, 0]
-            if self._clearance is not None:
-                dq = self._clearance.project(dq)
+            if clearance is not None:
+                dq = clearance.project(dq)
             # Cap the step at max_step (infinity norm). Under the cap the factor is exactly 1,
             # so the multiplication is skipped then (the usual case; same numbers).
             peak = np.maximum.reduce(np.abs(dq), axis=1, keepdims=True)

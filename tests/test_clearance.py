@@ -106,3 +106,29 @@ def test_clearance_off_is_the_plain_ik_and_bad_values_are_clear_errors():
         EnvConfig(ik={"clearance": 0.02, "iters": 2})
     # Sidecars from before the IK settings were nested read the same.
     assert EnvConfig.from_dict({"ik_clearance": 0.02}).ik.clearance == 0.02
+
+
+def test_a_planned_joint_path_is_collision_aware_where_the_plan_puts_the_arm():
+    """The IK away from the measured angles (preview.desired_joint_path: the feedforward rival's
+    plan, computed at reset while the arm is at home) projects each step with the capsules
+    where that step's angles put them: on paths that pass near the body the plain plan goes
+    into the arm, the collision-aware one stays clear of it; the clearance never shortens the
+    first, unconstrained solve (the arm at home is far from itself)."""
+    from panda_lead import preview, trajectory
+
+    seeds = [264, 205, 952]  # test_collision_aware_ik_keeps_a_colliding_trajectory_apart's
+    times = np.arange(120) * ArmBatch(1).dt
+    pos = np.stack([trajectory.sample(s).at(times)[0] for s in seeds])
+    plain, aware = ArmBatch(3), ArmBatch(3, IKConfig(clearance=0.02))
+    paths = {name: preview.desired_joint_path(core, pos)
+             for name, core in (("plain", plain), ("aware", aware))}
+    closest = {}
+    for name, q in paths.items():  # the nearest capsule pair at every planned step
+        closest[name] = []
+        for k in range(q.shape[1]):
+            aware._kinematics_at(q[:, k])
+            closest[name].append(aware._scratch_clearance.distances()[0].min(axis=1))
+        closest[name] = np.array(closest[name])  # (T, N)
+    assert closest["plain"].min() < 0  # the plain plan puts the arm into itself
+    assert closest["aware"].min() > 0.0
+    assert (closest["aware"].min(axis=0) > closest["plain"].min(axis=0)).all()

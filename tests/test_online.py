@@ -473,3 +473,39 @@ def test_play_duration_sets_the_episode_length():
 
     assert _base(Args(command="play", base="analytic")).config.episode_steps == 500
     assert _base(Args(command="play", base="analytic", duration=10.0)).config.episode_steps == 1000
+
+
+def test_the_clearance_reaches_every_base_and_keeps_the_corrected_arm_off_itself():
+    """online_correction.py --clearance: the collision-aware IK under the lead and the rival
+    alike (every other IK setting as without it, the rival still the rival); on trajectories
+    that pass near the arm's body (the collision study's subset) the rival with its correction
+    spends less than half the time touching itself with it (its planned joint path is
+    collision-aware too: test_clearance.py); bad values and the oracle are refused."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from online_correction import Args, _base, play
+
+    from panda_lead.errors import UserError
+    from panda_lead.rollout import record_many
+
+    for base in ("policy", "analytic", "feedforward"):
+        plain = _base(Args(command="play", base=base))
+        clear = _base(Args(command="play", base=base, clearance=0.02))
+        assert plain.config.ik.clearance == 0.0 and clear.config.ik.clearance == 0.02
+        assert {**vars(clear.config.ik), "clearance": 0.0} == vars(plain.config.ik)
+        assert clear.config.feedforward == plain.config.feedforward == (base == "feedforward")
+    seeds = [int(s) for s in (ROOT / "results/studies/collision/collision_seeds.txt")
+             .read_text().split()[:8]]
+    touching = {}
+    for clearance in (0.0, 0.02):
+        ctrl = _base(Args(command="play", base="feedforward", clearance=clearance))
+        corrected = wrap(ctrl.act, OnlineCorrection("repetitive", 0.3, 12, 5))
+        runs = record_many(ctrl.config, corrected, seeds)
+        touching[clearance] = sum(np.asarray(r.self_collision).sum() for r in runs)
+    assert touching[0.0] > 0 and touching[0.02] < touching[0.0] / 2
+    for bad in (-0.01, float("nan")):
+        with pytest.raises(UserError, match="--clearance"):
+            _base(Args(command="play", clearance=bad))
+    with pytest.raises(UserError, match="drop --clearance"):
+        play(Args(command="play", oracle=True, clearance=0.02, prefix="x"))
