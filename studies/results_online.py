@@ -169,6 +169,37 @@ def online_steps() -> list[Step]:
                                                       "feedforward_repetitive",
                                                       "feedforward_repetitive_noise1")),
                       stdout=True, section="all"))
+    # a real arm stops when it touches itself: the collision-aware IK under the study (alone and
+    # gated) and under the rival (alone and with its correction), each its own clearance
+    # (results_prepare.CLEARANCE, tuning_clearance.md): what it costs each, and the two again
+    aware = {"hardware study alone, collision-aware": [f"{p}_clear" for p in late100],
+             "hardware study, gated correction": [f"{p}_repetitive_guarded" for p in late100],
+             "hardware study, gated correction, collision-aware": [
+                 f"{p}_repetitive_guarded_clear" for p in late100],
+             "feedforward alone, collision-aware": ["feedforward_clear"],
+             "feedforward with its correction, collision-aware": ["feedforward_repetitive_clear"]}
+    shown = {"hardware study alone": [f"{p}" for p in late100], **dict(list(aware.items())[:3]),
+             "feedforward alone": ["feedforward"],
+             "feedforward with its correction": ["feedforward_repetitive"],
+             **dict(list(aware.items())[3:])}
+    steps.append(Step((f"{on}/excursions_clearance.md",),
+                      ("studies/online_correction.py", "excursions", "--groups",
+                       *(f"{label}={','.join(sets)}" for label, sets in shown.items())),
+                      tuple(f"rollouts/{x}" for sets in shown.values() for x in sets),
+                      stdout=True, section="all"))
+    steps += [_summary(f"{on}/late100_clear_vs_alone.md",
+                       [(p, f"{p}_clear") for p in late100], ("plain IK", "collision-aware IK"),
+                       paired=True),
+              _summary(f"{on}/late100_repetitive_guarded_clear_vs_guarded.md",
+                       [(f"{p}_repetitive_guarded", f"{p}_repetitive_guarded_clear")
+                        for p in late100], ("plain IK", "collision-aware IK"), paired=True),
+              _pair("feedforward_repetitive", "feedforward_repetitive_clear",
+                    f"{on}/feedforward_repetitive_clear_vs_feedforward_repetitive.md"),
+              _summary(f"{on}/late100_repetitive_guarded_clear_vs_feedforward_repetitive_clear.md",
+                       [("feedforward_repetitive_clear", f"{p}_repetitive_guarded_clear")
+                        for p in late100],
+                       ("feedforward + correction, collision-aware",
+                        "hardware lead + gated correction, collision-aware"))]
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
     looped = "v5_err_decay_repetitive_5m"

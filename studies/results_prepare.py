@@ -245,13 +245,27 @@ LONG_EPISODES = {
     "feedforward_10s": ("feedforward", None, None, None),
     "feedforward_repetitive_10s": ("feedforward", None, ONLINE["feedforward_repetitive"], None)}
 LONG_S, LONG_SEEDS = 10.0, "0-199"
+# the collision-aware IK under the lead and the rival alike (online_correction.py --clearance;
+# each its own clearance, chosen on the selection seeds: tuning_clearance.md), test seeds 0-999:
+# the hardware study's five seeds alone and with the gated correction, the feedforward rival
+# alone and with its own (same registry form as LONG_EPISODES, the clearance last)
+CLEARANCE_LEAD, CLEARANCE_RIVAL = 0.03, 0.01
+CLEARANCE = {
+    **{f"late100_s{k}_clear": ("policy", f"seeds/{LATE100}_s{k}", None, None, CLEARANCE_LEAD)
+       for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_guarded_clear": ("policy", f"seeds/{LATE100}_s{k}",
+                                                  ONLINE[f"late100_s{k}_repetitive"], GATE,
+                                                  CLEARANCE_LEAD) for k in range(1, 6)},
+    "feedforward_clear": ("feedforward", None, None, None, CLEARANCE_RIVAL),
+    "feedforward_repetitive_clear": ("feedforward", None, ONLINE["feedforward_repetitive"], None,
+                                     CLEARANCE_RIVAL)}
 
 
 def online_prefixes() -> set[str]:
     """Every rollout set the online corrections' tables may read that prepare plays: the
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
-                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES)
+                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -332,7 +346,8 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
                 or not _in_condition(meta, condition, spec[0])
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))):
             _play_online(root, spec, "0-999", prefix, "--condition", condition, gate=gate)
-    _long_episodes(root, wanted)
+    _variant_sets(root, wanted, LONG_EPISODES, LONG_SEEDS, LONG_S)
+    _variant_sets(root, wanted, CLEARANCE, "0-999")
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
@@ -344,27 +359,33 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
             _play_online(root, spec, "0-199", prefix, "--oracle", gate=gate)
 
 
-def _long_episodes(root: Path, wanted) -> None:
-    """LONG_EPISODES' sets (re)played when missing, or played at another length, by another
-    model or with another setting."""
-    for prefix, (base, model, spec, gate) in LONG_EPISODES.items():
+def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: float = 5.0) -> None:
+    """A registry's sets (LONG_EPISODES, CLEARANCE: prefix -> (base, archived model or None,
+    the online spec or None, its gate[, the IK's clearance])) (re)played when missing, or
+    played at another length or clearance, by another model or with another setting."""
+    for prefix, (base, model, spec, gate, *clear) in registry.items():
         if not wanted(prefix):
             continue
+        clearance = clear[0] if clear else 0.0
         meta = _first_meta(root, prefix)
-        stale = (meta.get("duration") != LONG_S
+        stale = (meta.get("duration") != duration
+                 or ((meta.get("env") or {}).get("ik") or {}).get("clearance") != clearance
                  or (spec and _other_setting(meta.get("online") or {}, spec, gate))
                  or (model and meta.get("model_sha256") != _archived_sha(root, model)))
         if not stale:
             continue
-        length = ("--duration", str(LONG_S), "--force")
+        length = ("--duration", str(duration)) if duration != 5.0 else ()
         if spec:
-            _play_online(root, spec, LONG_SEEDS, prefix, "--duration", str(LONG_S), gate=gate)
-        elif base == "policy":
-            _run(root, "eval.py", "--seeds", LONG_SEEDS, "--prefix", prefix, "--model",
-                 f"archive/{model}.zip", *length)
+            aware = ("--clearance", str(clearance)) if clearance else ()
+            _play_online(root, spec, seeds, prefix, *length, *aware, gate=gate)
+            continue
+        aware = ("--env.ik.clearance", str(clearance)) if clearance else ()
+        if base == "policy":
+            _run(root, "eval.py", "--seeds", seeds, "--prefix", prefix, "--model",
+                 f"archive/{model}.zip", *length, *aware, "--force")
         else:
-            _run(root, "ikpd.py", "--controller", base, "--seeds", LONG_SEEDS, "--prefix",
-                 prefix, *length)
+            _run(root, "ikpd.py", "--controller", base, "--seeds", seeds, "--prefix", prefix,
+                 *length, *aware, "--force")
 
 
 def _run(root: Path, *argv: str) -> None:
