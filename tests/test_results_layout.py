@@ -286,3 +286,39 @@ def test_the_excursions_table_counts_the_studys_sets_in_every_world():
             assert f"late100_s3{mid}{world}" in counted
     assert {"feedforward", "feedforward_repetitive_noise1"} <= counted
     assert not [p for p in counted if p.endswith("_10s")]
+
+
+def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, monkeypatch):
+    """The collision-aware sets (results_prepare.CLEARANCE) on a bare root: each played once on
+    the test seeds' 5 s episodes, the study's with the lead's clearance (eval.py's IK flag
+    alone, the correction's flag with its gate), the rival's with its own; a set played with
+    that clearance and setting is kept, one played with the plain IK is played again."""
+    import results_prepare as rp
+
+    calls = []
+    monkeypatch.setattr(rp, "_run", lambda root, *argv: calls.append(argv))
+    monkeypatch.setattr(rp, "_archived_sha", lambda root, name: "sha")
+    rp.prepare(tmp_path, set(rp.CLEARANCE))
+    played = {c[c.index("--prefix") + 1]: c for c in calls}
+    assert set(played) == set(rp.CLEARANCE) and len(calls) == len(rp.CLEARANCE)
+    assert rp.CLEARANCE_LEAD != rp.CLEARANCE_RIVAL  # (so the checks below tell them apart)
+    for prefix, argv in played.items():
+        assert argv[argv.index("--seeds") + 1] == "0-999" and "--duration" not in argv
+        flag = "--clearance" if "repetitive" in prefix else "--env.ik.clearance"
+        want = rp.CLEARANCE_RIVAL if prefix.startswith("feedforward") else rp.CLEARANCE_LEAD
+        assert float(argv[argv.index(flag) + 1]) == want
+    gated = played["late100_s2_repetitive_guarded_clear"]
+    assert gated[gated.index("--max-error") + 1] == "0.05"
+    assert gated[gated.index("--model") + 1].endswith("finetuned_late100_5m_s2.zip")
+    assert played["feedforward_clear"][:3] == ("ikpd.py", "--controller", "feedforward")
+    assert "--max-error" not in played["feedforward_repetitive_clear"]
+
+    spec = rp.CLEARANCE["late100_s1_repetitive_guarded_clear"][2]
+    done = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": rp.CLEARANCE_LEAD}},
+            "online": {**dict(zip(rp.SETTINGS, spec[2:])), "max_error": rp.GATE}}
+    plain = {**done, "env": {"ik": {"clearance": 0.0}}}
+    for meta, replayed in ((done, False), (plain, True)):
+        calls.clear()
+        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
+        rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_clear"})
+        assert len(calls) == int(replayed)
