@@ -117,6 +117,9 @@ class Args:
     """excursions and figure: LABEL=PREFIX,PREFIX,... (a study's sets, counted together), one
     per group; for figure, LABEL is CONTROLLER @ WORLD (one colour per controller, one marker
     per world, a controller's worlds joined)."""
+    list_seeds: bool = False
+    """excursions: also list, per group, the trajectories with an episode far off: how many of
+    the group's sets go far off on it, their mean error there and how many touch themselves."""
     out: Path | None = None
     """figure: the PNG to write."""
     window: float = 0.5
@@ -374,19 +377,36 @@ def excursions(args: Args) -> None:
     from panda_lead.rollout import ROLLOUT_DIR
 
     groups = _groups(args)
-    print(f"`uv run studies/online_correction.py excursions --groups {shlex.join(args.groups)}`: "
+    flag = " --list-seeds" if args.list_seeds else ""
+    print(f"`uv run studies/online_correction.py excursions --groups {shlex.join(args.groups)}"
+          f"{flag}`: "
           f"episodes whose tip is ever more than {100 * FAR:g} cm off, and with any "
           f"self-collision, after the first {AFTER:g} s.\n")
     print(f"| group | episodes | > {100 * FAR:g} cm off | self-collision |\n|---|---|---|---|")
+    listed = {}
     for label, prefixes in groups:
         episodes = far = touched = 0
+        seeds: dict[int, list] = {}  # trajectory -> (mean error, touched) of each far episode
         for prefix in prefixes:
-            for r in load_set(prefix, ROLLOUT_DIR).values():
+            for seed, r in load_set(prefix, ROLLOUT_DIR).items():
                 late = r.t >= AFTER
                 episodes += 1
-                far += bool(r.error[late].max() > FAR)
-                touched += bool(np.asarray(r.self_collision)[late].any())
+                is_far = bool(r.error[late].max() > FAR)
+                touches = bool(np.asarray(r.self_collision)[late].any())
+                far += is_far
+                touched += touches
+                if is_far:
+                    seeds.setdefault(seed, []).append((100 * r.error.mean(), touches))
         print(f"| {label} | {episodes} | {far} | {touched} |")
+        listed[label] = (seeds, len(prefixes))
+    if not args.list_seeds:
+        return
+    print("\nThe trajectories far off: seed (sets far off on it / the group's sets; their mean "
+          "error there, cm; how many of them touch themselves).\n")
+    for label, (seeds, n_sets) in listed.items():
+        items = [f"{seed} ({len(v)}/{n_sets}; {np.mean([e for e, _ in v]):.1f}; "
+                 f"{sum(t for _, t in v)})" for seed, v in sorted(seeds.items())]
+        print(f"- {label}: {', '.join(items) or 'none'}")
 
 
 def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:

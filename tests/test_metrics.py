@@ -772,6 +772,12 @@ def test_excursions_count_the_episodes_far_off_after_the_first_second(tmp_path, 
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| both")
             or line.startswith("| near")]
     assert rows == ["| both | 5 | 3 | 0 |", "| near | 2 | 0 | 0 |"]
+    excursions(Args(command="excursions", groups=["both=near,far", "near=near"],
+                    list_seeds=True))
+    out = capsys.readouterr().out
+    assert "--list-seeds`" in out  # (the command as it reruns)
+    assert "- both: 0 (1/2; 35.0; 0), 1 (1/2; 35.0; 0), 2 (1/2; 35.0; 0)" in out
+    assert "- near: none" in out
 
 
 def test_the_figure_puts_each_group_at_its_sets_mean_and_refuses_bad_output(tmp_path,

@@ -314,8 +314,9 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
     assert "--max-error" not in played["feedforward_repetitive_clear"]
 
     spec = rp.CLEARANCE["late100_s1_repetitive_guarded_clear"][2]
-    done = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": rp.CLEARANCE_LEAD}},
-            "online": {**dict(zip(rp.SETTINGS, spec[2:])), "max_error": rp.GATE}}
+    done = {"duration": 5.0, "model_sha256": "sha",
+            "env": {"ik": {"clearance": rp.CLEARANCE_LEAD}},
+            "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE}}
     plain = {**done, "env": {"ik": {"clearance": 0.0}}}
     for meta, replayed in ((done, False), (plain, True)):
         calls.clear()
