@@ -30,6 +30,11 @@ class Args:
                                     "0.01:1.0:0.02", "0.01:1.0:none")
     """Feedforward settings tau:gain:tau_ik (s, -, s; tau_ik 'none': the planned joint path
     alone, no IK at run time)."""
+    clip: bool = False
+    """The feedforward's servo correction clipped to what each motor can push (the rival in
+    use: controllers.FEEDFORWARD_CLIP; off by default, as the first two rounds were run)."""
+    future: bool = True
+    """Also tune the future-target lead (--no-future: the feedforward's grid alone)."""
 
 
 def mean_errors(config, act, seeds) -> tuple[float, float]:
@@ -48,7 +53,9 @@ def main(args: Args) -> None:
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
-    print(f"`uv run studies/preview_rivals.py` at commit {commit}; tuning seeds "
+    flags = " --clip" if args.clip else ""
+    flags += "" if args.future else " --no-future"
+    print(f"`uv run studies/preview_rivals.py{flags}` at commit {commit}; tuning seeds "
           f"{TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]} ({len(TUNE_SEEDS)}), {args.duration:g} s episodes; "
           "mean / settled (t >= 0.5 s) tracking error, cm\n")
     config = EnvConfig(episode_steps=int(round(args.duration / control_dt())))
@@ -56,7 +63,7 @@ def main(args: Args) -> None:
     m, s = mean_errors(config, controllers.make_analytic(), TUNE_SEEDS)
     print(f"| analytic lead | tau {controllers.DEFAULT_TAU} s | {m:.2f} | {s:.2f} |", flush=True)
     future = {}
-    for tau in args.future_taus:
+    for tau in args.future_taus if args.future else ():
         future[tau] = mean_errors(config, preview.make_future_target(tau), TUNE_SEEDS)
         print(f"| future target | tau {tau} s | {future[tau][0]:.2f} | {future[tau][1]:.2f} |",
               flush=True)
@@ -65,16 +72,20 @@ def main(args: Args) -> None:
     for setting in args.ff_settings:
         tau, gain, tau_ik = setting.split(":")
         ik = None if tau_ik == "none" else float(tau_ik)
-        ff[setting] = mean_errors(joint, preview.make_feedforward(float(tau), float(gain), ik),
-                                  TUNE_SEEDS)
-        print(f"| model-based feedforward | tau {tau} s, gain {gain}, IK look-ahead {tau_ik} "
+        ff[setting] = mean_errors(joint, preview.make_feedforward(float(tau), float(gain), ik,
+                                                                  args.clip), TUNE_SEEDS)
+        clipped = ", clipped to the motors" if args.clip else ""
+        print(f"| model-based feedforward | tau {tau} s, gain {gain}, IK look-ahead {tau_ik}{clipped} "
               f"| {ff[setting][0]:.2f} | {ff[setting][1]:.2f} |", flush=True)
-    best_f = min(future, key=lambda k: future[k][0])
     best_ff = min(ff, key=lambda k: ff[k][0])
-    print(f"\nbest: future target tau {best_f} s ({future[best_f][0]:.2f} cm); feedforward "
-          f"{best_ff} ({ff[best_ff][0]:.2f} cm). In use: future target tau "
-          f"{controllers.FUTURE_TAU} s; feedforward tau {controllers.FEEDFORWARD_TAU}, gain "
-          f"{controllers.FEEDFORWARD_GAIN}, IK look-ahead {controllers.FEEDFORWARD_TAU_IK}.")
+    best = ""
+    if future:
+        best_f = min(future, key=lambda k: future[k][0])
+        best = f"future target tau {best_f} s ({future[best_f][0]:.2f} cm); "
+    print(f"\nbest: {best}feedforward {best_ff} ({ff[best_ff][0]:.2f} cm). In use: future "
+          f"target tau {controllers.FUTURE_TAU} s; feedforward tau {controllers.FEEDFORWARD_TAU}, "
+          f"gain {controllers.FEEDFORWARD_GAIN}, IK look-ahead {controllers.FEEDFORWARD_TAU_IK}, "
+          f"clipped {controllers.FEEDFORWARD_CLIP}.")
 
 
 if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2
