@@ -55,6 +55,8 @@ def main(args: Args) -> None:
                             text=True).stdout.strip()
     flags = " --clip" if args.clip else ""
     flags += "" if args.future else " --no-future"
+    if args.ff_settings != Args.ff_settings:
+        flags += " --ff-settings " + " ".join(args.ff_settings)
     print(f"`uv run studies/preview_rivals.py{flags}` at commit {commit}; tuning seeds "
           f"{TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]} ({len(TUNE_SEEDS)}), {args.duration:g} s episodes; "
           "mean / settled (t >= 0.5 s) tracking error, cm\n")

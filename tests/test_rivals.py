@@ -191,3 +191,32 @@ def test_the_feedforward_env_knows_the_path_and_its_baselines_play_without_it(mo
         monkeypatch.setattr(harness.controllers, "make_policy", lambda *a, **k: None)
         ctrl = harness.build(name, 10, Path("residual.zip"))
         assert ctrl.config.feedforward is kept
+
+
+def test_preview_rivals_tunes_the_clipped_feedforward_when_asked(monkeypatch, capsys):
+    """studies/preview_rivals.py --clip --no-future: each feedforward setting of the grid is
+    built clipped to the motors (the rival in use), the future-target lead is skipped, and the
+    header's command carries both flags (a tuning table must rerun as printed). The scoring is
+    stubbed: what is tested is the grid, not the arm."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "studies"))
+    import preview_rivals
+
+    from panda_lead import preview
+
+    built = []
+    monkeypatch.setattr(preview, "make_feedforward",
+                        lambda tau, gain, tau_ik, clip=False: built.append(
+                            (tau, gain, tau_ik, clip)) or (lambda obs, task: None))
+    scores = iter([(4.0, 3.0), (2.5, 1.5), (2.0, 1.0)])  # analytic, then the two settings
+    monkeypatch.setattr(preview_rivals, "mean_errors", lambda *_: next(scores))
+    preview_rivals.main(preview_rivals.Args(clip=True, future=False,
+                                            ff_settings=("0.02:0.8:0.01", "0.03:0.9:none")))
+    out = capsys.readouterr().out
+    assert built == [(0.02, 0.8, 0.01, True), (0.03, 0.9, None, True)]
+    assert ("`uv run studies/preview_rivals.py --clip --no-future --ff-settings 0.02:0.8:0.01 "
+            "0.03:0.9:none` at commit") in out
+    assert "future target |" not in out
+    assert "best: feedforward 0.03:0.9:none (2.00 cm)" in out
