@@ -122,6 +122,11 @@ def online_steps() -> list[Step]:
                       ("hardware study + gated correction", "_repetitive_guarded")):
         figure_groups[name] = [(world, ",".join(f"{p}{mid}{cond}" for p in late100))
                                for world, cond in ((ideal, ""), (noisy, "_noise1_plan"))]
+    # ... and the two corrected controllers on the collision-aware IK (results_prepare.CLEARANCE)
+    off_itself = "ideal world, collision-aware IK"
+    figure_groups["feedforward + correction"].append((off_itself, "feedforward_repetitive_clear"))
+    figure_groups["hardware study + gated correction"].append(
+        (off_itself, ",".join(f"{p}_repetitive_guarded_clear" for p in late100)))
     groups_argv = [f"{name} @ {world}={sets}" for name, worlds in figure_groups.items()
                    for world, sets in worlds]
     read = [s for worlds in figure_groups.values() for _, sets in worlds for s in sets.split(",")]
