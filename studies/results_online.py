@@ -123,10 +123,12 @@ def online_steps() -> list[Step]:
         figure_groups[name] = [(world, ",".join(f"{p}{mid}{cond}" for p in late100))
                                for world, cond in ((ideal, ""), (noisy, "_noise1_plan"))]
     # ... and the two corrected controllers on the collision-aware IK (results_prepare.CLEARANCE)
+    # (first in each list, so that a controller's line runs collision-aware -> ideal -> noise)
     off_itself = "ideal world, collision-aware IK"
-    figure_groups["feedforward + correction"].append((off_itself, "feedforward_repetitive_clear"))
-    figure_groups["hardware study + gated correction"].append(
-        (off_itself, ",".join(f"{p}_repetitive_guarded_clear" for p in late100)))
+    figure_groups["feedforward + correction"].insert(0, (off_itself,
+                                                        "feedforward_repetitive_clear"))
+    figure_groups["hardware study + gated correction"].insert(
+        0, (off_itself, ",".join(f"{p}_repetitive_guarded_clear" for p in late100)))
     groups_argv = [f"{name} @ {world}={sets}" for name, worlds in figure_groups.items()
                    for world, sets in worlds]
     read = [s for worlds in figure_groups.values() for _, sets in worlds for s in sets.split(",")]
