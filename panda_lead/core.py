@@ -371,14 +371,15 @@ class ArmBatch:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
         if joint_goal is not None:
-            self.q_goal = np.clip(joint_goal, self._lo, self._hi)
+            self.q_goal = np.clip(self._off_itself(joint_goal), self._lo, self._hi)
         elif self.ik_config.substep_ik:
             sensors = self._substep_ik_step(lead, joint_offset)
         else:
             target = self._target_pos_now()
             self.q_goal = self.ik(target if lead is None else target + lead)
             if joint_offset is not None:
-                self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
+                self.q_goal = np.clip(self._off_itself(self.q_goal + joint_offset), self._lo,
+                                      self._hi)
         if joint_goal is not None or not self.ik_config.substep_ik:
             self._ctrl[:, :N_JOINTS] = self.q_goal
             sensors = self._physics(self._contacts["sensordata"])
@@ -386,6 +387,15 @@ class ArmBatch:
         self.step_count += 1
         self._mocap[:] = self._target_pos_now()
         self._flags(sensors)
+
+    def _off_itself(self, goal: np.ndarray) -> np.ndarray:
+        """A joint goal set around the IK (a joint offset on its solution, or a goal that skips
+        it: the feedforward rival's servo correction) under ik.clearance: its step from the
+        measured angles projected as the IK's own steps are, so the damper sees the whole
+        command; without a clearance the goal as it is."""
+        if self._clearance is None:
+            return goal
+        return self.qpos + self._clearance.project(goal - self.qpos)
 
     def _substep_ik_step(self, lead, joint_offset) -> np.ndarray:
         """The substeps of one control step, each after an IK on the target at its start time
@@ -398,7 +408,8 @@ class ArmBatch:
             target = fine[self._arange, np.minimum(base + j, fine.shape[1] - 1)]
             self.q_goal = self.ik(target if lead is None else target + lead)
             if joint_offset is not None:
-                self.q_goal = np.clip(self.q_goal + joint_offset, self._lo, self._hi)
+                self.q_goal = np.clip(self._off_itself(self.q_goal + joint_offset), self._lo,
+                                      self._hi)
             self._ctrl[:, :N_JOINTS] = self.q_goal
             sensors[:, j] = self._physics(one)[:, 0]
             self._end_of_step_kinematics()
