@@ -132,3 +132,28 @@ def test_a_planned_joint_path_is_collision_aware_where_the_plan_puts_the_arm():
     assert closest["plain"].min() < 0  # the plain plan puts the arm into itself
     assert closest["aware"].min() > 0.0
     assert (closest["aware"].min(axis=0) > closest["plain"].min(axis=0)).all()
+
+
+def test_a_goal_set_around_the_ik_is_projected_as_the_iks_own_steps():
+    """Under ik.clearance the damper sees the whole command: a joint goal that skips the IK
+    (the feedforward rival's) and a joint offset on the IK's solution go through the same
+    projection as the IK's steps, here one that forbids any motion (so the goal stays at the
+    measured angles); without a clearance both go to the PD as they are."""
+    from panda_lead import trajectory
+
+    trajs = [trajectory.sample(s) for s in (264, 205)]
+    goal = np.tile(ArmBatch(1).home, (2, 1)) + 0.05
+    for margin in (0.0, 0.02):
+        core = ArmBatch(2, IKConfig(clearance=margin))
+        core.reset(trajs=trajs, n_steps=50)
+        if margin:
+            core._clearance.project = lambda dq: np.zeros_like(dq)  # a wall every way
+        still = core.qpos.copy()
+        core.step(joint_goal=goal)
+        np.testing.assert_allclose(core.q_goal, still if margin else goal)
+        still = core.qpos.copy()
+        core.step(lead=np.zeros((2, 3)), joint_offset=np.full((2, N_JOINTS), 0.05))
+        if margin:
+            np.testing.assert_allclose(core.q_goal, still)
+        else:
+            assert np.abs(core.q_goal - still).max() > 0.04
