@@ -202,6 +202,7 @@ def online_steps() -> list[Step]:
                         for p in late100], ("plain IK", "collision-aware IK"), paired=True),
               _pair("feedforward_repetitive", "feedforward_repetitive_clear",
                     f"{on}/feedforward_repetitive_clear_vs_feedforward_repetitive.md"),
+              _pair("feedforward", "feedforward_clear", f"{on}/feedforward_clear_vs_feedforward.md"),
               _summary(f"{on}/late100_repetitive_guarded_clear_vs_feedforward_repetitive_clear.md",
                        [("feedforward_repetitive_clear", f"{p}_repetitive_guarded_clear")
                         for p in late100],
