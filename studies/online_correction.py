@@ -50,13 +50,15 @@ from panda_lead.errors import UserError, exit_on_user_error, parse_cli
 
 @dataclass
 class Args:
-    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions", "figure",
-                                          "windows"]]
+    command: tyro.conf.Positional[Literal["tune", "play", "summary", "excursions", "limits",
+                                          "figure", "windows"]]
     """tune: the grid on the tuning seeds; play: one setting as a rollout set; summary: a
     five-seed study's sets with and without a correction (--pairs); excursions: the rare large
-    errors and self-collisions of groups of sets (--groups); figure: settled error against jerk,
-    one point per group of sets (--groups, --out); windows: per shape, each group's mean error
-    in consecutive windows of the episode, and the shape's lap times (--groups, --window)."""
+    errors and self-collisions of groups of sets (--groups); limits: the episodes a real Panda
+    would accept, per group of sets (studies/deploy.py's check, --groups); figure: settled
+    error against jerk, one point per group of sets (--groups, --out); windows: per shape, each
+    group's mean error in consecutive windows of the episode, and the shape's lap times
+    (--groups, --window)."""
     base: Literal["policy", "analytic", "feedforward"] = "policy"
     """The lead the correction adds to: a PPO model (--model), the analytic lead, or none on
     top of the model-based feedforward rival (EnvConfig.feedforward: the correction is then
@@ -409,6 +411,29 @@ def excursions(args: Args) -> None:
         print(f"- {label}: {', '.join(items) or 'none'}")
 
 
+def limits(args: Args) -> None:
+    """Per group of rollout sets: its episodes and those a real Panda would accept from the
+    swing's end on (studies/deploy.py's check: the 100 Hz joint goals interpolated to 1 kHz,
+    low-passed as libfranka does, every joint's and the tip's velocity, acceleration and jerk
+    within the published limits)."""
+    from deploy import SKIP_S, accepted_by_arm
+
+    from panda_lead.metrics.pairing import load_set
+    from panda_lead.rollout import ROLLOUT_DIR
+
+    groups = _groups(args)
+    print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}`: "
+          f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check).\n")
+    print("| group | episodes | accepted | share |\n|---|---|---|---|")
+    for label, prefixes in groups:
+        episodes = accepted = 0
+        for prefix in prefixes:
+            checks = accepted_by_arm(load_set(prefix, ROLLOUT_DIR))
+            episodes += len(checks)
+            accepted += sum(c.accepted for c in checks.values())
+        print(f"| {label} | {episodes} | {accepted} | {100 * accepted / episodes:.1f}% |")
+
+
 def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:
     """Each group's point (controller, world, settled error with its two-level CI, jerk, number
     of sets) over the trajectories its sets share, and the seeds every group shares."""
@@ -515,7 +540,7 @@ def windows(args: Args) -> None:
 
 def main() -> None:
     args = parse_cli(Args, description=__doc__)
-    {"tune": tune, "play": play, "summary": summary, "excursions": excursions,
+    {"tune": tune, "play": play, "summary": summary, "excursions": excursions, "limits": limits,
      "figure": figure, "windows": windows}[args.command](args)
 
 

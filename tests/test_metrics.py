@@ -870,3 +870,23 @@ def test_windows_average_each_groups_error_per_shape_and_window(tmp_path, monkey
     assert out.count("| both | 2.50 | 2.50 | 2.00 |") == 2
     with pytest.raises(UserError, match="--window"):
         windows(Args(command="windows", groups=["closing=closing"], window=0.0))
+
+
+def test_limits_count_the_episodes_a_panda_would_accept(tmp_path, monkeypatch, capsys):
+    """online_correction.py limits: per group, its episodes and those the deploy check accepts
+    (here a stubbed check that accepts even seeds only), a group summing its sets."""
+    from types import SimpleNamespace
+
+    sys.path.insert(0, str(REPO / "studies"))
+    import deploy
+    from online_correction import Args, limits
+
+    monkeypatch.chdir(tmp_path)
+    write_prefix(tmp_path / "rollouts", "a", 0.01, [0, 1, 2, 3], T=120)
+    write_prefix(tmp_path / "rollouts", "b", 0.01, [0, 1], T=120)
+    monkeypatch.setattr(deploy, "accepted_by_arm", lambda rollouts: {
+        s: SimpleNamespace(accepted=s % 2 == 0) for s in rollouts})
+    limits(Args(command="limits", groups=["both=a,b", "b=b"]))
+    out = capsys.readouterr().out
+    assert "limits --groups both=a,b b=b`" in out
+    assert "| both | 6 | 3 | 50.0% |" in out and "| b | 2 | 1 | 50.0% |" in out
