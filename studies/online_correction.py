@@ -119,6 +119,10 @@ class Args:
     """excursions and figure: LABEL=PREFIX,PREFIX,... (a study's sets, counted together), one
     per group; for figure, LABEL is CONTROLLER @ WORLD (one colour per controller, one marker
     per world, a controller's worlds joined)."""
+    against: str = ""
+    """limits: a group's label; each group's accepted share is also given minus that group's,
+    paired by trajectory (each group's sets averaged per trajectory), with a 95% bootstrap CI
+    over trajectories (--bootstrap resamples)."""
     list_seeds: bool = False
     """excursions: also list, per group, the trajectories with an episode far off: how many of
     the group's sets go far off on it, their mean error there and how many touch themselves."""
@@ -422,16 +426,43 @@ def limits(args: Args) -> None:
     from panda_lead.rollout import ROLLOUT_DIR
 
     groups = _groups(args)
-    print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}`: "
-          f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check).\n")
-    print("| group | episodes | accepted | share |\n|---|---|---|---|")
+    labels = [label for label, _ in groups]
+    if args.against and args.against not in labels:
+        raise UserError(f"--against {args.against!r} is not a group's label; the groups: "
+                        + ", ".join(labels))
+    flag = f" --against {shlex.quote(args.against)}" if args.against else ""
+    print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}{flag}`: "
+          f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check)"
+          + (f"; each group minus {args.against!r}, paired by trajectory (each group's sets "
+             f"averaged per trajectory), 95% bootstrap CI over trajectories ({args.bootstrap} "
+             "resamples)" if args.against else "") + ".\n")
+    shares: dict[str, dict[int, float]] = {}  # label -> trajectory -> accepted share of its sets
+    counts: dict[str, tuple[int, int]] = {}  # label -> (episodes, accepted)
     for label, prefixes in groups:
-        episodes = accepted = 0
+        per_seed: dict[int, list[bool]] = {}
         for prefix in prefixes:
-            checks = accepted_by_arm(load_set(prefix, ROLLOUT_DIR))
-            episodes += len(checks)
-            accepted += sum(c.accepted for c in checks.values())
-        print(f"| {label} | {episodes} | {accepted} | {100 * accepted / episodes:.1f}% |")
+            for seed, c in accepted_by_arm(load_set(prefix, ROLLOUT_DIR)).items():
+                per_seed.setdefault(seed, []).append(bool(c.accepted))
+        shares[label] = {seed: float(np.mean(v)) for seed, v in per_seed.items()}
+        counts[label] = (sum(map(len, per_seed.values())), sum(map(sum, per_seed.values())))
+    extra = f" | minus {args.against} (points) |" if args.against else " |"
+    print(f"| group | episodes | accepted | share{extra}\n|---|---|---|---|"
+          + ("---|" if args.against else ""))
+    rng = np.random.default_rng(0)
+    for label in labels:
+        episodes, accepted = counts[label]
+        row = f"| {label} | {episodes} | {accepted} | {100 * accepted / episodes:.1f}% |"
+        if args.against and label != args.against:
+            ref = shares[args.against]
+            seeds = sorted(set(ref) & set(shares[label]))
+            diff = 100 * np.array([shares[label][s] - ref[s] for s in seeds])
+            boot = diff[rng.integers(0, len(diff), (args.bootstrap, len(diff)))].mean(axis=1)
+            lo, hi = np.percentile(boot, [2.5, 97.5])
+            shown = "shown" if lo > 0 or hi < 0 else "not shown"
+            row += f" {diff.mean():+.1f} [{lo:+.1f}, {hi:+.1f}] {shown} |"
+        elif args.against:
+            row += " |"
+        print(row)
 
 
 def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:

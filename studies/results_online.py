@@ -196,12 +196,17 @@ def online_steps() -> list[Step]:
                       stdout=True, section="all"))
     # ... and would a real Panda accept them (the deploy check on the same sets, the analytic
     # lead beside them)
+    # (against the analytic lead: issue 36's acceptance target; against the study alone: what
+    # the correction costs there)
     judged = {"analytic lead": ["analytic"], **shown}
-    steps.append(Step((f"{on}/limits_clearance.md",),
-                      ("studies/online_correction.py", "limits", "--groups",
-                       *(f"{label}={','.join(sets)}" for label, sets in judged.items())),
-                      tuple(f"rollouts/{x}" for sets in judged.values() for x in sets),
-                      stdout=True, section="all"))
+    for out, against in (("limits_clearance", "analytic lead"),
+                         ("limits_clearance_vs_alone", "hardware study alone")):
+        steps.append(Step((f"{on}/{out}.md",),
+                          ("studies/online_correction.py", "limits", "--groups",
+                           *(f"{label}={','.join(sets)}" for label, sets in judged.items()),
+                           "--against", against),
+                          tuple(f"rollouts/{x}" for sets in judged.values() for x in sets),
+                          stdout=True, section="all"))
     steps += [_summary(f"{on}/late100_clear_vs_alone.md",
                        [(p, f"{p}_clear") for p in late100], ("plain IK", "collision-aware IK"),
                        paired=True),

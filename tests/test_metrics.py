@@ -890,3 +890,17 @@ def test_limits_count_the_episodes_a_panda_would_accept(tmp_path, monkeypatch, c
     out = capsys.readouterr().out
     assert "limits --groups both=a,b b=b`" in out
     assert "| both | 6 | 3 | 50.0% |" in out and "| b | 2 | 1 | 50.0% |" in out
+    # --against: the paired difference per trajectory, here every trajectory's share equal
+    write_prefix(tmp_path / "rollouts", "c", 0.01, [0, 1, 2, 3], T=120)
+    monkeypatch.setattr(deploy, "accepted_by_arm", lambda rollouts: {
+        s: SimpleNamespace(accepted=s % 2 == 0 or len(rollouts) == 4 and s == 1)
+        for s in rollouts})
+    limits(Args(command="limits", groups=["a=a", "c=c", "b=b"], against="b", bootstrap=200))
+    out = capsys.readouterr().out
+    assert "limits --groups a=a c=c b=b --against b`" in out
+    # a and c accept 0, 1 and 2 of 0-3 (seed 1 only where a set has 4 seeds); b accepts 0:
+    # on the shared trajectories 0 and 1, a minus b is +0 and +100 points: +50 on average
+    assert "| a | 4 | 3 | 75.0% | +50.0 [" in out
+    assert "| b | 2 | 1 | 50.0% | |" in out
+    with pytest.raises(UserError, match="--against 'z'"):
+        limits(Args(command="limits", groups=["a=a"], against="z"))
