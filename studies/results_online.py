@@ -207,6 +207,15 @@ def online_steps() -> list[Step]:
                            "--against", against),
                           tuple(f"rollouts/{x}" for sets in judged.values() for x in sets),
                           stdout=True, section="all"))
+    # ... and through 3 steps of latency, the correction (ungated there) against the study alone
+    latency = {"alone, latency 3": [f"{p}_delay3" for p in late100],
+               "with its correction, latency 3": [f"{p}_repetitive_delay3" for p in late100]}
+    steps.append(Step((f"{on}/limits_delay3.md",),
+                      ("studies/online_correction.py", "limits", "--groups",
+                       *(f"{label}={','.join(sets)}" for label, sets in latency.items()),
+                       "--against", "alone, latency 3"),
+                      tuple(f"rollouts/{x}" for sets in latency.values() for x in sets),
+                      stdout=True, section="all"))
     steps += [_summary(f"{on}/late100_clear_vs_alone.md",
                        [(p, f"{p}_clear") for p in late100], ("plain IK", "collision-aware IK"),
                        paired=True),
