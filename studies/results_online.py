@@ -179,16 +179,15 @@ def online_steps() -> list[Step]:
     # a real arm stops when it touches itself: the collision-aware IK under the study (alone and
     # gated) and under the rival (alone and with its correction), each its own clearance
     # (results_prepare.CLEARANCE, tuning_clearance.md): what it costs each, and the two again
-    aware = {"hardware study alone, collision-aware": [f"{p}_clear" for p in late100],
+    shown = {"hardware study alone": late100,
+             "hardware study alone, collision-aware": [f"{p}_clear" for p in late100],
              "hardware study, gated correction": [f"{p}_repetitive_guarded" for p in late100],
              "hardware study, gated correction, collision-aware": [
                  f"{p}_repetitive_guarded_clear" for p in late100],
-             "feedforward alone, collision-aware": ["feedforward_clear"],
-             "feedforward with its correction, collision-aware": ["feedforward_repetitive_clear"]}
-    shown = {"hardware study alone": [f"{p}" for p in late100], **dict(list(aware.items())[:3]),
              "feedforward alone": ["feedforward"],
              "feedforward with its correction": ["feedforward_repetitive"],
-             **dict(list(aware.items())[3:])}
+             "feedforward alone, collision-aware": ["feedforward_clear"],
+             "feedforward with its correction, collision-aware": ["feedforward_repetitive_clear"]}
     steps.append(Step((f"{on}/excursions_clearance.md",),
                       ("studies/online_correction.py", "excursions", "--groups",
                        *(f"{label}={','.join(sets)}" for label, sets in shown.items())),
