@@ -814,6 +814,19 @@ def test_the_figure_puts_each_group_at_its_sets_mean_and_refuses_bad_output(tmp_
         figure(Args(command="figure", groups=["A=near"], out=tmp_path / "fig.jpg"))
 
 
+def _write_x_offsets(root, steps: int, offsets: dict) -> None:
+    """Rollout sets on seeds 0-2 (circle, fig8, circle) whose tip sits offsets[prefix](t) metres
+    along x from a straight-line target, at every step of ``steps``."""
+    t = DT * np.arange(1, steps + 1)
+    target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
+    for seed in (0, 1, 2):
+        shape = "circle" if seed % 2 == 0 else "fig8"
+        for prefix, off in offsets.items():
+            tip = target + np.broadcast_to(off(t), t.shape)[:, None] * [1.0, 0.0, 0.0]
+            r = on_its_trajectory(make_rollout(tip, target, seed=seed, shape=shape))
+            rollout.save(r, rollout.rollout_path(prefix, seed, root / "rollouts"))
+
+
 def test_summary_settles_from_the_time_it_is_given(tmp_path, monkeypatch, capsys):
     """online_correction.py summary --settle-time: the settled error is the mean from that
     time on (here a tip 2 cm off that closes to 1 cm at 5 s), said in the header and in the
@@ -824,14 +837,8 @@ def test_summary_settles_from_the_time_it_is_given(tmp_path, monkeypatch, capsys
     from panda_lead.errors import UserError
 
     monkeypatch.chdir(tmp_path)
-    for seed in (0, 1, 2):
-        shape = "circle" if seed % 2 == 0 else "fig8"
-        t = DT * np.arange(1, 601)
-        target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
-        off = np.where(t < 5.0, 0.02, 0.01)[:, None] * [1.0, 0.0, 0.0]
-        for prefix, tip in (("a", target + [0.02, 0.0, 0.0]), ("b", target + off)):
-            r = on_its_trajectory(make_rollout(tip, target, seed=seed, shape=shape))
-            rollout.save(r, rollout.rollout_path(prefix, seed, tmp_path / "rollouts"))
+    _write_x_offsets(tmp_path, 600, {"a": lambda t: 0.02,
+                                     "b": lambda t: np.where(t < 5.0, 0.02, 0.01)})
     summary(Args(command="summary", pairs=["a:b", "a:b"], settle_time=5.0, bootstrap=200))
     out = capsys.readouterr().out
     assert "summary --pairs a:b a:b --settle-time 5`" in out and "settled from 5 s" in out
@@ -853,14 +860,8 @@ def test_windows_average_each_groups_error_per_shape_and_window(tmp_path, monkey
     from panda_lead.errors import UserError
 
     monkeypatch.chdir(tmp_path)
-    for seed in (0, 1, 2):
-        shape = "circle" if seed % 2 == 0 else "fig8"
-        t = DT * np.arange(1, 201)
-        target = np.stack([0.3 * t, 0.5 + 0.0 * t, 0.2 * t], axis=1)
-        off = np.where(t < 1.5, 0.02, 0.01)[:, None] * [1.0, 0.0, 0.0]
-        for prefix, tip in (("closing", target + off), ("far", target + [0.03, 0.0, 0.0])):
-            r = on_its_trajectory(make_rollout(tip, target, seed=seed, shape=shape))
-            rollout.save(r, rollout.rollout_path(prefix, seed, tmp_path / "rollouts"))
+    _write_x_offsets(tmp_path, 200, {"closing": lambda t: np.where(t < 1.5, 0.02, 0.01),
+                                     "far": lambda t: 0.03})
     windows(Args(command="windows", groups=["closing=closing", "both=closing,far"]))
     out = capsys.readouterr().out
     laps = [trajectory.sample(k, "circle").params["lap_time"] for k in (0, 2)]
