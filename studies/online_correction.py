@@ -423,6 +423,7 @@ def limits(args: Args) -> None:
     from deploy import SKIP_S, accepted_by_arm
 
     from panda_lead.metrics.pairing import load_set
+    from panda_lead.metrics.stats import paired_ci, shown
     from panda_lead.rollout import ROLLOUT_DIR
 
     groups = _groups(args)
@@ -448,7 +449,6 @@ def limits(args: Args) -> None:
     extra = f" | minus {args.against} (points) |" if args.against else " |"
     print(f"| group | episodes | accepted | share{extra}\n|---|---|---|---|"
           + ("---|" if args.against else ""))
-    rng = np.random.default_rng(0)
     for label in labels:
         episodes, accepted = counts[label]
         row = f"| {label} | {episodes} | {accepted} | {100 * accepted / episodes:.1f}% |"
@@ -456,10 +456,9 @@ def limits(args: Args) -> None:
             ref = shares[args.against]
             seeds = sorted(set(ref) & set(shares[label]))
             diff = 100 * np.array([shares[label][s] - ref[s] for s in seeds])
-            boot = diff[rng.integers(0, len(diff), (args.bootstrap, len(diff)))].mean(axis=1)
-            lo, hi = np.percentile(boot, [2.5, 97.5])
-            shown = "shown" if lo > 0 or hi < 0 else "not shown"
-            row += f" {diff.mean():+.1f} [{lo:+.1f}, {hi:+.1f}] {shown} |"
+            ci = paired_ci(diff, args.bootstrap)
+            row += (f" {diff.mean():+.1f} [{ci[0]:+.1f}, {ci[1]:+.1f}] "
+                    f"{'shown' if shown(ci) else 'not shown'} |")
         elif args.against:
             row += " |"
         print(row)
