@@ -26,9 +26,12 @@ charged as metrics.py charges them. ``excursions`` counts, per group of sets, th
 tip is ever more than 30 cm off after the first second, and those with a self-collision: what a
 mean error hides (results/studies/online/excursions.md). ``figure`` draws settled error against
 tip jerk, one point per group of sets (labelled CONTROLLER @ WORLD), with two-level 95% CIs:
-results/studies/online/planned_path.png. ``windows`` prints, per shape, each group's mean error
-in consecutive windows of the episode and the shape's lap times (results/studies/online/windows.md).
-"""
+results/studies/online/planned_path.png. ``limits`` counts, per group of sets, the episodes a
+real Panda would accept (docs/deploy.md's check), with --against LABEL each group's share minus
+that group's, paired by trajectory (results/studies/online/limits_clearance.md). ``windows``
+prints, per shape, each group's mean error in consecutive windows of the episode and the
+shape's lap times (results/studies/online/windows.md). ``play`` and ``tune`` take --clearance
+for the collision-aware IK under the lead and the rival alike."""
 
 from __future__ import annotations
 
@@ -431,12 +434,6 @@ def limits(args: Args) -> None:
     if args.against and args.against not in labels:
         raise UserError(f"--against {args.against!r} is not a group's label; the groups: "
                         + ", ".join(labels))
-    flag = f" --against {shlex.quote(args.against)}" if args.against else ""
-    print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}{flag}`: "
-          f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check)"
-          + (f"; each group minus {args.against!r}, paired by trajectory (each group's sets "
-             f"averaged per trajectory), 95% bootstrap CI over trajectories ({args.bootstrap} "
-             "resamples)" if args.against else "") + ".\n")
     shares: dict[str, dict[int, float]] = {}  # label -> trajectory -> accepted share of its sets
     counts: dict[str, tuple[int, int]] = {}  # label -> (episodes, accepted)
     for label, prefixes in groups:
@@ -446,6 +443,12 @@ def limits(args: Args) -> None:
                 per_seed.setdefault(seed, []).append(bool(c.accepted))
         shares[label] = {seed: float(np.mean(v)) for seed, v in per_seed.items()}
         counts[label] = (sum(map(len, per_seed.values())), sum(map(sum, per_seed.values())))
+    flag = f" --against {shlex.quote(args.against)}" if args.against else ""
+    print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}{flag}`: "
+          f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check)"
+          + (f"; each group minus {args.against!r}, paired by trajectory (each group's sets "
+             f"averaged per trajectory), 95% bootstrap CI over trajectories ({args.bootstrap} "
+             "resamples)" if args.against else "") + ".\n")
     extra = f" | minus {args.against} (points) |" if args.against else " |"
     print(f"| group | episodes | accepted | share{extra}\n|---|---|---|---|"
           + ("---|" if args.against else ""))
