@@ -44,12 +44,14 @@ class OnlineCorrection:
     smooth: int = 0  # repetitive: Q's half-width (control steps)
     start: float = 0.5  # s: errors before this are not learned from
     max_error: float = 0.0  # m: errors farther than this are not learned from (0: all are)
+    fade: float = 0.0  # s: learning fades in over this time after ``start`` (0: switched on)
 
     def __post_init__(self):
         if self.kind not in KINDS:
             raise ValueError(f"unknown online correction {self.kind!r}; choose from {KINDS}")
         if not (np.isfinite(self.gain) and self.gain >= 0 and self.advance >= 0
-                and self.smooth >= 0 and self.start >= 0 and self.max_error >= 0):
+                and self.smooth >= 0 and self.start >= 0 and self.max_error >= 0
+                and np.isfinite(self.fade) and self.fade >= 0):
             raise ValueError(f"online correction settings must be finite and >= 0: {self}")
 
     @property
@@ -58,9 +60,22 @@ class OnlineCorrection:
 
     def meta(self) -> dict:
         out = asdict(self)
-        if not self.max_error:  # the sets played before the gate existed record none
-            del out["max_error"]
+        for name in ("max_error", "fade"):  # sets played before these existed record none
+            if not out[name]:
+                del out[name]
         return out
+
+    def weight(self, t: np.ndarray) -> np.ndarray:
+        """How much an error made at time ``t`` (s) is learned from: 0 before ``start``, then
+        1 at once, or with ``fade`` rising as a smoothstep (3x^2 - 2x^3, flat at both ends) over
+        ``fade`` seconds. Why: switched on at once, the first lap's correction starts with a kink
+        in its slope (the low-pass's window fills step by step), and the 1 kHz command a real
+        Panda receives turns that kink into a joint-acceleration spike past its limit
+        (docs/questions.md 9, "A correction that fades in")."""
+        if not self.fade:
+            return (t >= self.start).astype(float)
+        x = np.clip((t - self.start) / self.fade, 0.0, 1.0)
+        return x * x * (3.0 - 2.0 * x)
 
 
 class Corrector:
@@ -95,9 +110,9 @@ class Corrector:
         state["e"][rows, steps] = error  # the truth, read only once it is ``seen`` steps old
         known, acts = steps - seen, steps + out
         if correction.kind == "integral":
-            on = (known * dt >= correction.start) & (known >= 0)
+            w = (correction.weight(known * dt) * (known >= 0))[:, None]
             late = state["e"][rows, np.maximum(known, 0)]
-            state["integral"] += np.where(on[:, None], late * dt, 0.0)
+            state["integral"] += np.where(w > 0, late * dt * w, 0.0)
             c = correction.gain * state["integral"]
         else:
             lap = state["lap"]
@@ -107,11 +122,11 @@ class Corrector:
                 c_then, has_c = _at(state["c"], acts - lap + j, acts - 1)
                 src = acts - lap + correction.advance + j
                 e_then, has_e = _at(state["e"], src, known)
-                learn = has_e & (src * dt >= correction.start)
+                learn = has_e * correction.weight(src * dt)
                 if correction.max_error:  # an excursion is not a lap's error to repeat
-                    learn &= np.linalg.norm(e_then, axis=1) <= correction.max_error
+                    learn *= np.linalg.norm(e_then, axis=1) <= correction.max_error
                 c += np.where(has_c[:, None], c_then, 0.0) + np.where(
-                    learn[:, None], correction.gain * e_then, 0.0)
+                    learn[:, None] > 0, correction.gain * learn[:, None] * e_then, 0.0)
             c /= len(shifts)
         state["c"][rows, acts] = c
         return c

@@ -97,6 +97,10 @@ class Args:
     max_error: float = 0.0
     """tune and play: the repetitive correction does not learn from errors farther than this
     (m; 0: from all): the gate, the same for every setting of the tuning grid."""
+    fade: float = 0.0
+    """tune and play: the correction learns from the errors after its start with a weight that
+    rises smoothly from 0 to 1 over this time (s; online.OnlineCorrection.weight); 0: at once.
+    A correction switched on at once starts with a kink the real arm's limits refuse."""
     clearance: float = 0.0
     """tune and play: the collision-aware IK's clearance (m; --env.ik.clearance, clearance.py),
     for the lead and the rival alike; 0: the plain IK. The correction acts on the target the IK
@@ -230,6 +234,7 @@ def tune(args: Args) -> None:
     given = f" --model {args.model}" if args.model is not None else ""
     given += f" --condition {args.condition}" if args.condition != "none" else ""
     given += f" --max-error {args.max_error:g}" if args.max_error else ""
+    given += f" --fade {args.fade:g}" if args.fade else ""
     given += f" --clearance {args.clearance:g}" if args.clearance else ""
     grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
                          for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
@@ -243,8 +248,8 @@ def tune(args: Args) -> None:
           "|---|---|---|---|---|---|")
     m, alone = mean_errors(ctrl.config, ctrl.act, TUNE_SEEDS)
     print(f"| none (the lead alone) | | | | {m:.3f} | {alone:.3f} |", flush=True)
-    grid = [OnlineCorrection("integral", g) for g in args.integral_gains]
-    grid += [OnlineCorrection("repetitive", g, a, q, max_error=args.max_error)
+    grid = [OnlineCorrection("integral", g, fade=args.fade) for g in args.integral_gains]
+    grid += [OnlineCorrection("repetitive", g, a, q, max_error=args.max_error, fade=args.fade)
              for q in args.smooths for g in args.repetitive_gains for a in args.advances]
     best: dict[str, tuple[float, OnlineCorrection]] = {}
     for c in grid:
@@ -276,7 +281,7 @@ def play(args: Args) -> None:
     seeds = parse_seed_range(args.seeds)
     try:
         correction = OnlineCorrection(args.kind, args.gain, args.advance, args.smooth,
-                                      max_error=args.max_error)
+                                      max_error=args.max_error, fade=args.fade)
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
