@@ -92,6 +92,31 @@ def test_the_gate_keeps_an_excursion_out_of_what_the_correction_learns():
     assert OnlineCorrection("repetitive", 0.3, max_error=0.05).meta()["max_error"] == 0.05
 
 
+def test_a_fading_correction_weighs_what_it_learns_by_a_smoothstep_and_records_it():
+    """fade: an error made t s after the start is learned from with the weight 3x^2 - 2x^3,
+    x = t / fade (then 1), not all at once; without a fade the law is the one above, bit for
+    bit, and records no fade."""
+    steps, lap_steps, gain, advance, start, fade = 60, 4, 0.5, 1, 0.1, 0.2
+    e = np.random.default_rng(3).normal(0, 0.01, (steps, 1, 3))
+    faded = StubTask([lap_steps * DT], e).play(
+        wrap(zero_lead, OnlineCorrection("repetitive", gain, advance, start=start, fade=fade)))
+    c = np.zeros((steps, 3))
+    for k in range(steps):
+        src = k - lap_steps + advance
+        if k - lap_steps >= 0:
+            c[k] = c[k - lap_steps]
+        x = np.clip((src * DT - start) / fade, 0, 1) if src >= 0 else 0.0
+        c[k] += gain * x * x * (3 - 2 * x) * e[max(src, 0), 0]
+    np.testing.assert_allclose(faded[:, 0], np.clip(c, -MAX_LEAD, MAX_LEAD), atol=1e-7)
+    hard = StubTask([lap_steps * DT], e).play(
+        wrap(zero_lead, OnlineCorrection("repetitive", gain, advance, start=start)))
+    assert not np.allclose(faded, hard)  # the first lap's errors are learned from less
+    assert "fade" not in OnlineCorrection("repetitive", 0.3).meta()
+    assert OnlineCorrection("repetitive", 0.3, fade=0.2).meta()["fade"] == 0.2
+    w = OnlineCorrection("integral", 1.0, start=0.5, fade=0.2).weight(np.array([0.4, 0.6, 0.8]))
+    np.testing.assert_allclose(w, [0.0, 0.5, 1.0])
+
+
 def test_a_fresh_episode_starts_from_no_correction():
     e = np.full((30, 1, 3), 0.01)
     act = wrap(zero_lead, OnlineCorrection("integral", 5.0, start=0.0))
@@ -234,7 +259,9 @@ def test_the_feedforward_base_is_the_rival_and_its_correction_acts_on_it():
 
 def test_bad_settings_are_refused():
     for bad in (dict(kind="derivative", gain=1.0), dict(kind="integral", gain=float("nan")),
-                dict(kind="repetitive", gain=0.3, advance=-1)):
+                dict(kind="repetitive", gain=0.3, advance=-1),
+                dict(kind="repetitive", gain=0.3, fade=-0.1),
+                dict(kind="repetitive", gain=0.3, fade=float("inf"))):
         with pytest.raises(ValueError):
             OnlineCorrection(**bad)
 
