@@ -215,6 +215,45 @@ def online_steps() -> list[Step]:
                        "--against", "alone, latency 3"),
                       tuple(f"rollouts/{x}" for sets in latency.values() for x in sets),
                       stdout=True, section="all"))
+    # ... and the corrections faded in (results_prepare.FADED, tuning_fade.md): what the Panda
+    # accepts then (against the study alone and against the analytic lead), what the fade costs,
+    # and the faded controllers against each other and against the lead alone
+    faded = {"hardware study, gated correction faded in": [
+                 f"{p}_repetitive_guarded_fade" for p in late100],
+             "hardware study, gated correction faded in, collision-aware": [
+                 f"{p}_repetitive_guarded_clear_fade" for p in late100],
+             "feedforward with its correction faded in": ["feedforward_repetitive_fade"],
+             "feedforward with its correction faded in, collision-aware": [
+                 "feedforward_repetitive_clear_fade"]}
+    judged = {**judged, **faded}
+    for out, against in (("limits_fade", "hardware study alone"),
+                         ("limits_fade_vs_analytic", "analytic lead")):
+        steps.append(Step((f"{on}/{out}.md",),
+                          ("studies/online_correction.py", "limits", "--groups",
+                           *(f"{label}={','.join(sets)}" for label, sets in judged.items()),
+                           "--against", against),
+                          tuple(f"rollouts/{x}" for sets in judged.values() for x in sets),
+                          stdout=True, section="all"))
+    steps.append(Step((f"{on}/excursions_fade.md",),
+                      ("studies/online_correction.py", "excursions", "--groups",
+                       *(f"{label}={','.join(sets)}" for label, sets in faded.items())),
+                      tuple(f"rollouts/{x}" for sets in faded.values() for x in sets),
+                      stdout=True, section="all"))
+    steps += [_summary(f"{on}/late100_repetitive_guarded_fade_vs_guarded.md",
+                       [(f"{p}_repetitive_guarded", f"{p}_repetitive_guarded_fade")
+                        for p in late100], ("switched on at once", "faded in"), paired=True),
+              _summary(f"{on}/late100_repetitive_guarded_clear_fade_vs_alone_clear.md",
+                       [(f"{p}_clear", f"{p}_repetitive_guarded_clear_fade") for p in late100],
+                       ("alone, collision-aware", "gated correction faded in, collision-aware"),
+                       paired=True),
+              _pair("feedforward_repetitive", "feedforward_repetitive_fade",
+                    f"{on}/feedforward_repetitive_fade_vs_feedforward_repetitive.md"),
+              _summary(f"{on}/late100_repetitive_guarded_clear_fade_vs_feedforward_repetitive"
+                       "_clear_fade.md",
+                       [("feedforward_repetitive_clear_fade", f"{p}_repetitive_guarded_clear_fade")
+                        for p in late100],
+                       ("feedforward + correction faded in, collision-aware",
+                        "hardware lead + gated correction faded in, collision-aware"))]
     steps += [_summary(f"{on}/late100_clear_vs_alone.md",
                        [(p, f"{p}_clear") for p in late100], ("plain IK", "collision-aware IK"),
                        paired=True),

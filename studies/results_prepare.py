@@ -260,12 +260,30 @@ CLEARANCE = {
     "feedforward_repetitive_clear": ("feedforward", None, ONLINE["feedforward_repetitive"], None,
                                      CLEARANCE_RIVAL)}
 
+# the corrections faded in (online_correction.py --fade; online.OnlineCorrection.weight): switched
+# on at once their first lap's kink breaks the Panda's joint-2 acceleration limit; the fade,
+# chosen on the selection seeds (tuning_fade.md), is the same for the lead's and the rival's.
+# Test seeds 0-999, same registry form as CLEARANCE with the fade last
+FADE = 0.1
+FADED = {
+    **{f"late100_s{k}_repetitive_guarded_fade": ("policy", f"seeds/{LATE100}_s{k}",
+                                                 ONLINE[f"late100_s{k}_repetitive"], GATE, 0.0,
+                                                 FADE) for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_guarded_clear_fade": ("policy", f"seeds/{LATE100}_s{k}",
+                                                       ONLINE[f"late100_s{k}_repetitive"], GATE,
+                                                       CLEARANCE_LEAD, FADE) for k in range(1, 6)},
+    "feedforward_repetitive_fade": ("feedforward", None, ONLINE["feedforward_repetitive"], None,
+                                    0.0, FADE),
+    "feedforward_repetitive_clear_fade": ("feedforward", None, ONLINE["feedforward_repetitive"],
+                                          None, CLEARANCE_RIVAL, FADE)}
+
 
 def online_prefixes() -> set[str]:
     """Every rollout set the online corrections' tables may read that prepare plays: the
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
-                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE)
+                  ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE,
+                  FADED)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -293,17 +311,19 @@ def _in_condition(meta: dict, condition: str, base: str = "policy") -> bool:
     return all(env.get(k, {} if k == "obs_noise" else 0) == v for k, v in want.items())
 
 
-def _other_setting(setting: dict, spec: tuple, gate: float | None) -> bool:
+def _other_setting(setting: dict, spec: tuple, gate: float | None,
+                   fade: float | None = None) -> bool:
     """Whether a set's recorded correction (its meta's "online", or an oracle's start) is not
-    ``spec``'s setting with ``gate``."""
+    ``spec``'s setting with ``gate`` and ``fade`` (None: none recorded)."""
     return (tuple(setting.get(k) for k in SETTINGS) != spec[2:]
-            or setting.get("max_error") != gate)
+            or setting.get("max_error") != gate or setting.get("fade") != fade)
 
 
 def _play_online(root: Path, spec: tuple, seeds: str, prefix: str, *extra: str,
-                 gate: float | None = None) -> None:
+                 gate: float | None = None, fade: float | None = None) -> None:
     base, model, kind, gain, advance, smooth = spec
     extra += ("--max-error", str(gate)) if gate else ()
+    extra += ("--fade", str(fade)) if fade else ()
     with_model = ["--model", f"archive/{model}.zip"] if model else []
     _run(root, "studies/online_correction.py", "play", "--base", base, *with_model, "--kind",
          kind, "--gain", str(gain), "--advance", str(advance), "--smooth", str(smooth),
@@ -348,6 +368,7 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
             _play_online(root, spec, "0-999", prefix, "--condition", condition, gate=gate)
     _variant_sets(root, wanted, LONG_EPISODES, LONG_SEEDS, LONG_S)
     _variant_sets(root, wanted, CLEARANCE, "0-999")
+    _variant_sets(root, wanted, FADED, "0-999")
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
@@ -360,24 +381,26 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
 
 
 def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: float = 5.0) -> None:
-    """A registry's sets (LONG_EPISODES, CLEARANCE: prefix -> (base, archived model or None,
-    the online spec or None, its gate[, the IK's clearance])) (re)played when missing, or
-    played at another length or clearance, by another model or with another setting."""
-    for prefix, (base, model, spec, gate, *clear) in registry.items():
+    """A registry's sets (LONG_EPISODES, CLEARANCE, FADED: prefix -> (base, archived model or
+    None, the online spec or None, its gate[, the IK's clearance[, its fade]])) (re)played when
+    missing, or played at another length or clearance, by another model or with another
+    setting."""
+    for prefix, (base, model, spec, gate, *rest) in registry.items():
         if not wanted(prefix):
             continue
-        clearance = clear[0] if clear else 0.0
+        clearance = rest[0] if rest else 0.0
+        fade = rest[1] if len(rest) > 1 else None
         meta = _first_meta(root, prefix)
         stale = (meta.get("duration") != duration
                  or ((meta.get("env") or {}).get("ik") or {}).get("clearance") != clearance
-                 or (spec and _other_setting(meta.get("online") or {}, spec, gate))
+                 or (spec and _other_setting(meta.get("online") or {}, spec, gate, fade))
                  or (model and meta.get("model_sha256") != _archived_sha(root, model)))
         if not stale:
             continue
         length = ("--duration", str(duration)) if duration != 5.0 else ()
         if spec:
             aware = ("--clearance", str(clearance)) if clearance else ()
-            _play_online(root, spec, seeds, prefix, *length, *aware, gate=gate)
+            _play_online(root, spec, seeds, prefix, *length, *aware, gate=gate, fade=fade)
             continue
         aware = ("--env.ik.clearance", str(clearance)) if clearance else ()
         if base == "policy":

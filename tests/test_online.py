@@ -536,3 +536,37 @@ def test_the_clearance_reaches_every_base_and_keeps_the_corrected_arm_off_itself
             _base(Args(command="play", clearance=bad))
     with pytest.raises(UserError, match="drop --clearance"):
         play(Args(command="play", oracle=True, clearance=0.02, prefix="x"))
+
+
+def test_a_faded_correction_keeps_what_the_real_arm_accepts():
+    """Why fade exists: on these test trajectories the hardware model alone is accepted by the
+    Panda's limits (docs/deploy.md's check, from 0.5 s on) and its gated correction switched on
+    at once is not (the first lap's kink: a joint-2 acceleration spike in the 1 kHz command);
+    faded in over 0.1 s (the setting chosen on the selection seeds) it is accepted again."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from deploy import SKIP_S
+    from online_correction import Args, _base
+    from results_prepare import HARDWARE
+
+    from panda_lead.core import home_qpos
+    from panda_lead.limits import check_many
+    from panda_lead.rollout import record_many
+
+    ctrl = _base(Args(command="play", model=ROOT / "archive" / f"{HARDWARE}.zip"))
+    seeds = [16, 429, 647]
+
+    def checks(act):
+        runs = record_many(ctrl.config, act, seeds)
+        return check_many(np.stack([r.q_goal for r in runs]), runs[0].dt, home_qpos(),
+                          skip=SKIP_S)
+
+    gated = dict(kind="repetitive", gain=0.5, advance=10, smooth=3, max_error=0.05)
+    alone = checks(ctrl.act)
+    at_once = checks(wrap(ctrl.act, OnlineCorrection(**gated)))
+    faded = checks(wrap(ctrl.act, OnlineCorrection(**gated, fade=0.1)))
+    assert all(c.accepted for c in alone)
+    assert not any(c.accepted for c in at_once)
+    assert all(c.worst_limit == "joint 2 acceleration" for c in at_once)
+    assert all(c.accepted for c in faded)

@@ -323,3 +323,36 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
         monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
         rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_clear"})
         assert len(calls) == int(replayed)
+
+
+def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_path, monkeypatch):
+    """The faded corrections (results_prepare.FADED) on a bare root: each played once with the
+    fade, the collision-aware ones with their controller's clearance; a set played with that
+    fade is kept, one played with the correction switched on at once is played again (the
+    fade is part of the setting a set must record)."""
+    import results_prepare as rp
+
+    calls = []
+    monkeypatch.setattr(rp, "_run", lambda root, *argv: calls.append(argv))
+    monkeypatch.setattr(rp, "_archived_sha", lambda root, name: "sha")
+    rp.prepare(tmp_path, set(rp.FADED))
+    played = {c[c.index("--prefix") + 1]: c for c in calls}
+    assert set(played) == set(rp.FADED) and len(calls) == len(rp.FADED)
+    for prefix, argv in played.items():
+        assert float(argv[argv.index("--fade") + 1]) == rp.FADE
+        want = rp.CLEARANCE_RIVAL if prefix.startswith("feedforward") else rp.CLEARANCE_LEAD
+        assert ("--clearance" in argv) == ("_clear" in prefix)
+        if "_clear" in prefix:
+            assert float(argv[argv.index("--clearance") + 1]) == want
+    assert "--max-error" in played["late100_s4_repetitive_guarded_fade"]
+    assert "--max-error" not in played["feedforward_repetitive_fade"]
+
+    spec = rp.FADED["late100_s1_repetitive_guarded_fade"][2]
+    at_once = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": 0.0}},
+               "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE}}
+    faded = {**at_once, "online": {**at_once["online"], "fade": rp.FADE}}
+    for meta, replayed in ((faded, False), (at_once, True)):
+        calls.clear()
+        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
+        rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_fade"})
+        assert len(calls) == int(replayed)
