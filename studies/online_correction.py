@@ -31,7 +31,8 @@ real Panda would accept (docs/deploy.md's check), with --against LABEL each grou
 that group's, paired by trajectory (results/studies/online/limits_clearance.md). ``windows``
 prints, per shape, each group's mean error in consecutive windows of the episode and the
 shape's lap times (results/studies/online/windows.md). ``play`` and ``tune`` take --clearance
-for the collision-aware IK under the lead and the rival alike."""
+for the collision-aware IK under the lead and the rival alike, and --fade for a correction that
+fades in instead of starting at once (a kink the Panda's limits refuse: tuning_fade.md)."""
 
 from __future__ import annotations
 
@@ -218,12 +219,19 @@ def _oracle(args: Args, correction):
     return replace(ctrl, meta=meta, init_act=wrap(ctrl.init_act, correction))
 
 
+def _check_fade(args: Args) -> None:
+    """--fade is a time: refused before anything is played or written."""
+    if not (np.isfinite(args.fade) and args.fade >= 0):
+        raise UserError(f"--fade must be a time >= 0 (s), got {args.fade:g}")
+
+
 def tune(args: Args) -> None:
     from preview_rivals import mean_errors  # the same scoring the preview rivals were tuned by
 
     from panda_lead.online import OnlineCorrection, wrap
     from panda_lead.seeds import TUNE_SEEDS
 
+    _check_fade(args)
     if args.duration != Args.duration:
         raise UserError("--duration is for play: the tuning plays the test seeds' 5 s episodes")
     ctrl = _base(args)
@@ -278,6 +286,7 @@ def play(args: Args) -> None:
 
     if not args.prefix:
         raise UserError("play needs --prefix NAME (the rollout set's folder under rollouts/)")
+    _check_fade(args)
     seeds = parse_seed_range(args.seeds)
     try:
         correction = OnlineCorrection(args.kind, args.gain, args.advance, args.smooth,

@@ -507,7 +507,8 @@ def test_the_clearance_reaches_every_base_and_keeps_the_corrected_arm_off_itself
     alike (every other IK setting as without it, the rival still the rival); on trajectories
     that pass near the arm's body (the collision study's subset) the rival with its correction
     spends less than half the time touching itself with it (its planned joint path is
-    collision-aware too: test_clearance.py); bad values and the oracle are refused."""
+    collision-aware too: test_clearance.py); bad values and the oracle are refused,
+    and so is a bad --fade, before anything is played."""
     import sys
 
     sys.path.insert(0, str(ROOT / "studies"))
@@ -536,6 +537,12 @@ def test_the_clearance_reaches_every_base_and_keeps_the_corrected_arm_off_itself
             _base(Args(command="play", clearance=bad))
     with pytest.raises(UserError, match="drop --clearance"):
         play(Args(command="play", oracle=True, clearance=0.02, prefix="x"))
+    from online_correction import tune
+
+    for bad in (-0.1, float("nan")):  # a fade is refused before anything is played
+        for command in (play, tune):
+            with pytest.raises(UserError, match="--fade must be a time"):
+                command(Args(command=command.__name__, fade=bad, prefix="x"))
 
 
 def test_a_faded_correction_keeps_what_the_real_arm_accepts():
