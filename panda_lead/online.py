@@ -13,6 +13,10 @@ its lead, learned within the episode from the tip's tracking error e = target - 
   what the servos cannot follow lap after lap. It knows the planned path's period, so it is
   a preview controller.
 
+Either can fade in (``fade`` s): the errors just after ``start`` are learned from with a weight
+rising smoothly from 0 to 1 (OnlineCorrection.weight) instead of all at once, whose kink the
+real arm's joint-acceleration limit refuses (results/studies/online/tuning_fade.md).
+
 Both are settings, never trained: studies/online_correction.py tunes them on the tuning seeds.
 Under observation noise a played correction reads the measured error, the target reading minus
 the tip reading, with the very draws the lead's observation carries (LeadTask.error_reading_noise);
