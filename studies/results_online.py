@@ -8,6 +8,15 @@ from __future__ import annotations
 from results_steps import HEADLINE, Step, _compare, _oracle_table, _pair, _report, _summary
 
 
+def _groups_step(out: str, command: str, groups: dict[str, list[str]], *extra: str) -> Step:
+    """One of online_correction.py's group commands (excursions, limits) over labelled groups
+    of rollout sets, its stdout the table ``out``."""
+    return Step((out,), ("studies/online_correction.py", command, "--groups",
+                         *(f"{label}={','.join(sets)}" for label, sets in groups.items()), *extra),
+                tuple(f"rollouts/{x}" for sets in groups.values() for x in sets), stdout=True,
+                section="all")
+
+
 def online_steps() -> list[Step]:
     steps: list[Step] = []
     # online corrections on top of a lead (issue 37, "a lead of another kind"): the lap-to-lap
@@ -188,11 +197,7 @@ def online_steps() -> list[Step]:
              "feedforward with its correction": ["feedforward_repetitive"],
              "feedforward alone, collision-aware": ["feedforward_clear"],
              "feedforward with its correction, collision-aware": ["feedforward_repetitive_clear"]}
-    steps.append(Step((f"{on}/excursions_clearance.md",),
-                      ("studies/online_correction.py", "excursions", "--groups",
-                       *(f"{label}={','.join(sets)}" for label, sets in shown.items())),
-                      tuple(f"rollouts/{x}" for sets in shown.values() for x in sets),
-                      stdout=True, section="all"))
+    steps.append(_groups_step(f"{on}/excursions_clearance.md", "excursions", shown))
     # ... and would a real Panda accept them (the deploy check on the same sets, the analytic
     # lead beside them)
     # (against the analytic lead: issue 36's acceptance target; against the study alone: what
@@ -200,21 +205,12 @@ def online_steps() -> list[Step]:
     judged = {"analytic lead": ["analytic"], **shown}
     for out, against in (("limits_clearance", "analytic lead"),
                          ("limits_clearance_vs_alone", "hardware study alone")):
-        steps.append(Step((f"{on}/{out}.md",),
-                          ("studies/online_correction.py", "limits", "--groups",
-                           *(f"{label}={','.join(sets)}" for label, sets in judged.items()),
-                           "--against", against),
-                          tuple(f"rollouts/{x}" for sets in judged.values() for x in sets),
-                          stdout=True, section="all"))
+        steps.append(_groups_step(f"{on}/{out}.md", "limits", judged, "--against", against))
     # ... and through 3 steps of latency, the correction (ungated there) against the study alone
     latency = {"alone, latency 3": [f"{p}_delay3" for p in late100],
                "with its correction, latency 3": [f"{p}_repetitive_delay3" for p in late100]}
-    steps.append(Step((f"{on}/limits_delay3.md",),
-                      ("studies/online_correction.py", "limits", "--groups",
-                       *(f"{label}={','.join(sets)}" for label, sets in latency.items()),
-                       "--against", "alone, latency 3"),
-                      tuple(f"rollouts/{x}" for sets in latency.values() for x in sets),
-                      stdout=True, section="all"))
+    steps.append(_groups_step(f"{on}/limits_delay3.md", "limits", latency, "--against",
+                              "alone, latency 3"))
     # ... and the corrections faded in (results_prepare.FADED, tuning_fade.md): what the Panda
     # accepts then (against the study alone and against the analytic lead), what the fade costs,
     # and the faded controllers against each other and against the lead alone
@@ -228,17 +224,8 @@ def online_steps() -> list[Step]:
     judged = {**judged, **faded}
     for out, against in (("limits_fade", "hardware study alone"),
                          ("limits_fade_vs_analytic", "analytic lead")):
-        steps.append(Step((f"{on}/{out}.md",),
-                          ("studies/online_correction.py", "limits", "--groups",
-                           *(f"{label}={','.join(sets)}" for label, sets in judged.items()),
-                           "--against", against),
-                          tuple(f"rollouts/{x}" for sets in judged.values() for x in sets),
-                          stdout=True, section="all"))
-    steps.append(Step((f"{on}/excursions_fade.md",),
-                      ("studies/online_correction.py", "excursions", "--groups",
-                       *(f"{label}={','.join(sets)}" for label, sets in faded.items())),
-                      tuple(f"rollouts/{x}" for sets in faded.values() for x in sets),
-                      stdout=True, section="all"))
+        steps.append(_groups_step(f"{on}/{out}.md", "limits", judged, "--against", against))
+    steps.append(_groups_step(f"{on}/excursions_fade.md", "excursions", faded))
     steps += [_summary(f"{on}/late100_repetitive_guarded_fade_vs_guarded.md",
                        [(f"{p}_repetitive_guarded", f"{p}_repetitive_guarded_fade")
                         for p in late100], ("switched on at once", "faded in"), paired=True),

@@ -288,6 +288,21 @@ def test_the_excursions_table_counts_the_studys_sets_in_every_world():
     assert not [p for p in counted if p.endswith("_10s")]
 
 
+def _prepare_bare(root, monkeypatch, registry: dict) -> tuple[list, dict]:
+    """results_prepare.prepare on a bare root for one registry's sets, every script it would
+    run recorded instead (each archived model's hash "sha"): the calls (kept: a test clears
+    and reuses them) and prefix -> its call; each set played exactly once."""
+    import results_prepare as rp
+
+    calls = []
+    monkeypatch.setattr(rp, "_run", lambda root, *argv: calls.append(argv))
+    monkeypatch.setattr(rp, "_archived_sha", lambda root, name: "sha")
+    rp.prepare(root, set(registry))
+    played = {c[c.index("--prefix") + 1]: c for c in calls}
+    assert set(played) == set(registry) and len(calls) == len(registry)
+    return calls, played
+
+
 def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, monkeypatch):
     """The collision-aware sets (results_prepare.CLEARANCE) on a bare root: each played once on
     the test seeds' 5 s episodes, the study's with the lead's clearance (eval.py's IK flag
@@ -295,12 +310,7 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
     that clearance and setting is kept, one played with the plain IK is played again."""
     import results_prepare as rp
 
-    calls = []
-    monkeypatch.setattr(rp, "_run", lambda root, *argv: calls.append(argv))
-    monkeypatch.setattr(rp, "_archived_sha", lambda root, name: "sha")
-    rp.prepare(tmp_path, set(rp.CLEARANCE))
-    played = {c[c.index("--prefix") + 1]: c for c in calls}
-    assert set(played) == set(rp.CLEARANCE) and len(calls) == len(rp.CLEARANCE)
+    calls, played = _prepare_bare(tmp_path, monkeypatch, rp.CLEARANCE)
     assert rp.CLEARANCE_LEAD != rp.CLEARANCE_RIVAL  # (so the checks below tell them apart)
     for prefix, argv in played.items():
         assert argv[argv.index("--seeds") + 1] == "0-999" and "--duration" not in argv
@@ -332,12 +342,7 @@ def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_p
     fade is part of the setting a set must record)."""
     import results_prepare as rp
 
-    calls = []
-    monkeypatch.setattr(rp, "_run", lambda root, *argv: calls.append(argv))
-    monkeypatch.setattr(rp, "_archived_sha", lambda root, name: "sha")
-    rp.prepare(tmp_path, set(rp.FADED))
-    played = {c[c.index("--prefix") + 1]: c for c in calls}
-    assert set(played) == set(rp.FADED) and len(calls) == len(rp.FADED)
+    calls, played = _prepare_bare(tmp_path, monkeypatch, rp.FADED)
     for prefix, argv in played.items():
         assert float(argv[argv.index("--fade") + 1]) == rp.FADE
         want = rp.CLEARANCE_RIVAL if prefix.startswith("feedforward") else rp.CLEARANCE_LEAD
