@@ -226,6 +226,16 @@ def online_steps() -> list[Step]:
                          ("limits_fade_vs_analytic", "analytic lead")):
         steps.append(_groups_step(f"{on}/{out}.md", "limits", judged, "--against", against))
     steps.append(_groups_step(f"{on}/excursions_fade.md", "excursions", faded))
+    # ... through 3 steps of latency, faded in over 0.2 s (results_prepare.FADED_CONDITION: the
+    # trade tuning_fade.md shows, not its rule's choice)
+    latency_faded = {**latency, "with its correction faded in over 0.2 s, latency 3": [
+        f"{p}_repetitive_delay3_fade" for p in late100]}
+    steps += [_groups_step(f"{on}/limits_delay3_fade.md", "limits", latency_faded, "--against",
+                           "alone, latency 3"),
+              _summary(f"{on}/late100_repetitive_delay3_fade_vs_at_once.md",
+                       [(f"{p}_repetitive_delay3", f"{p}_repetitive_delay3_fade")
+                        for p in late100], ("switched on at once", "faded in over 0.2 s"),
+                       paired=True)]
     steps += [_summary(f"{on}/late100_repetitive_guarded_fade_vs_guarded.md",
                        [(f"{p}_repetitive_guarded", f"{p}_repetitive_guarded_fade")
                         for p in late100], ("switched on at once", "faded in"), paired=True),

@@ -276,6 +276,14 @@ FADED = {
                                     0.0, FADE),
     "feedforward_repetitive_clear_fade": ("feedforward", None, ONLINE["feedforward_repetitive"],
                                           None, CLEARANCE_RIVAL, FADE)}
+# ... and through 3 steps of latency, where the rule chose no fade (every fade cost more than
+# its 0.02 cm on the selection seeds) but 0.2 s kept every trajectory the lead alone is accepted
+# on there: shown as that trade, labelled not the rule's choice (prefix -> (spec, condition,
+# fade)); the correction's setting there is the ungated one (CONDITION_ONLINE)
+FADE_DELAY3 = 0.2
+FADED_CONDITION = {f"late100_s{k}_repetitive_delay3_fade": (
+    CONDITION_ONLINE[f"late100_s{k}_repetitive_delay3"][0], "delay3", FADE_DELAY3)
+    for k in range(1, 6)}
 
 
 def online_prefixes() -> set[str]:
@@ -283,7 +291,7 @@ def online_prefixes() -> set[str]:
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
                   ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE,
-                  FADED)
+                  FADED, FADED_CONDITION)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -355,17 +363,19 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
                      or not _in_condition(_first_meta(root, prefix), condition)):
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", *_condition_flags(condition), "--force")
-    played = {**{p: (spec, "none", None) for p, spec in ONLINE.items()},
-              **{p: (spec, c, None) for p, (spec, c) in CONDITION_ONLINE.items()},
-              **{p: (spec, c, GATE) for p, (spec, c) in GATED.items()}}
-    for prefix, (spec, condition, gate) in played.items():
+    played = {**{p: (spec, "none", None, None) for p, spec in ONLINE.items()},
+              **{p: (spec, c, None, None) for p, (spec, c) in CONDITION_ONLINE.items()},
+              **{p: (spec, c, GATE, None) for p, (spec, c) in GATED.items()},
+              **{p: (spec, c, None, fade) for p, (spec, c, fade) in FADED_CONDITION.items()}}
+    for prefix, (spec, condition, gate, fade) in played.items():
         if not wanted(prefix):
             continue
         meta, model = _first_meta(root, prefix), spec[1]
-        if (_other_setting(meta.get("online") or {}, spec, gate)
+        if (_other_setting(meta.get("online") or {}, spec, gate, fade)
                 or not _in_condition(meta, condition, spec[0])
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))):
-            _play_online(root, spec, "0-999", prefix, "--condition", condition, gate=gate)
+            _play_online(root, spec, "0-999", prefix, "--condition", condition, gate=gate,
+                         fade=fade)
     _variant_sets(root, wanted, LONG_EPISODES, LONG_SEEDS, LONG_S)
     _variant_sets(root, wanted, CLEARANCE, "0-999")
     _variant_sets(root, wanted, FADED, "0-999")

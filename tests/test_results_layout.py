@@ -336,8 +336,9 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
 
 
 def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_path, monkeypatch):
-    """The faded corrections (results_prepare.FADED) on a bare root: each played once with the
-    fade, the collision-aware ones with their controller's clearance; a set played with that
+    """The faded corrections (results_prepare.FADED, FADED_CONDITION) on a bare root: each played
+    once with its fade, the collision-aware ones with their controller's clearance, the latency
+    ones under it; a set played with that
     fade is kept, one played with the correction switched on at once is played again (the
     fade is part of the setting a set must record)."""
     import results_prepare as rp
@@ -351,6 +352,10 @@ def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_p
             assert float(argv[argv.index("--clearance") + 1]) == want
     assert "--max-error" in played["late100_s4_repetitive_guarded_fade"]
     assert "--max-error" not in played["feedforward_repetitive_fade"]
+    calls, played = _prepare_bare(tmp_path, monkeypatch, rp.FADED_CONDITION)
+    for argv in played.values():  # through latency: its own fade, the ungated setting there
+        assert argv[argv.index("--condition") + 1] == "delay3" and "--max-error" not in argv
+        assert float(argv[argv.index("--fade") + 1]) == rp.FADE_DELAY3
 
     spec = rp.FADED["late100_s1_repetitive_guarded_fade"][2]
     at_once = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": 0.0}},
