@@ -338,9 +338,8 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
 def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_path, monkeypatch):
     """The faded corrections (results_prepare.FADED, FADED_CONDITION) on a bare root: each played
     once with its fade, the collision-aware ones with their controller's clearance, the latency
-    ones under it; a set played with that
-    fade is kept, one played with the correction switched on at once is played again (the
-    fade is part of the setting a set must record)."""
+    ones under it; a set played with that fade is kept, one played with the correction switched
+    on at once is played again (the fade is part of the setting a set must record)."""
     import results_prepare as rp
 
     calls, played = _prepare_bare(tmp_path, monkeypatch, rp.FADED)
