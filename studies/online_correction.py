@@ -131,6 +131,9 @@ class Args:
     """limits: a group's label; each group's accepted share is also given minus that group's,
     paired by trajectory (each group's sets averaged per trajectory), with a 95% bootstrap CI
     over trajectories (--bootstrap resamples)."""
+    by_shape: bool = False
+    """limits: also a table of each group's accepted episodes per shape (where the differences
+    between controllers lie)."""
     list_seeds: bool = False
     """excursions: also list, per group, the trajectories with an episode far off: how many of
     the group's sets go far off on it, their mean error there and how many touch themselves."""
@@ -450,14 +453,20 @@ def limits(args: Args) -> None:
                         + ", ".join(labels))
     shares: dict[str, dict[int, float]] = {}  # label -> trajectory -> accepted share of its sets
     counts: dict[str, tuple[int, int]] = {}  # label -> (episodes, accepted)
+    shapes: dict[int, str] = {}  # trajectory -> its shape
+    per_set: dict[str, dict[int, list[bool]]] = {}  # label -> trajectory -> accepted, per set
     for label, prefixes in groups:
         per_seed: dict[int, list[bool]] = {}
         for prefix in prefixes:
-            for seed, c in accepted_by_arm(load_set(prefix, ROLLOUT_DIR)).items():
+            rollouts = load_set(prefix, ROLLOUT_DIR)
+            shapes.update((seed, r.meta.get("shape", "?")) for seed, r in rollouts.items())
+            for seed, c in accepted_by_arm(rollouts).items():
                 per_seed.setdefault(seed, []).append(bool(c.accepted))
+        per_set[label] = per_seed
         shares[label] = {seed: float(np.mean(v)) for seed, v in per_seed.items()}
         counts[label] = (sum(map(len, per_seed.values())), sum(map(sum, per_seed.values())))
     flag = f" --against {shlex.quote(args.against)}" if args.against else ""
+    flag += " --by-shape" if args.by_shape else ""
     print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}{flag}`: "
           f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check)"
           + (f"; each group minus {args.against!r}, paired by trajectory (each group's sets "
@@ -479,6 +488,17 @@ def limits(args: Args) -> None:
         elif args.against:
             row += " |"
         print(row)
+    if args.by_shape:  # each group's accepted episodes per shape, its sets summed
+        names = sorted(set(shapes.values()))
+        print(f"\nAccepted episodes per shape (of the group's episodes on that shape):\n\n"
+              f"| group | {' | '.join(names)} |\n|---|{'---|' * len(names)}")
+        for label in labels:
+            cells = []
+            for name in names:
+                runs = [ok for seed, oks in per_set[label].items() if shapes[seed] == name
+                        for ok in oks]
+                cells.append(f"{sum(runs)} of {len(runs)}")
+            print(f"| {label} | {' | '.join(cells)} |")
 
 
 def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:

@@ -226,6 +226,16 @@ def online_steps() -> list[Step]:
                          ("limits_fade_vs_analytic", "analytic lead")):
         steps.append(_groups_step(f"{on}/{out}.md", "limits", judged, "--against", against))
     steps.append(_groups_step(f"{on}/excursions_fade.md", "excursions", faded))
+    # ... and where the controllers' acceptance differs: per shape, the classical controller (the
+    # paths' own demands) beside the leads and the rival
+    by_shape = {"classical (no lead)": ["classical"], "analytic lead": ["analytic"],
+                "hardware study alone": late100,
+                "hardware study, gated correction faded in, collision-aware":
+                    faded["hardware study, gated correction faded in, collision-aware"],
+                "feedforward alone": ["feedforward"],
+                "feedforward with its correction faded in, collision-aware":
+                    ["feedforward_repetitive_clear_fade"]}
+    steps.append(_groups_step(f"{on}/limits_by_shape.md", "limits", by_shape, "--by-shape"))
     # ... through 3 steps of latency, faded in over 0.2 s (results_prepare.FADED_CONDITION: the
     # trade tuning_fade.md shows, not its rule's choice)
     latency_faded = {**latency, "with its correction faded in over 0.2 s, latency 3": [

@@ -903,5 +903,12 @@ def test_limits_count_the_episodes_a_panda_would_accept(tmp_path, monkeypatch, c
     # on the shared trajectories 0 and 1, a minus b is +0 and +100 points: +50 on average
     assert "| a | 4 | 3 | 75.0% | +50.0 [" in out
     assert "| b | 2 | 1 | 50.0% | |" in out
+    # --by-shape: each group's accepted episodes per shape (even seeds are circles here, and
+    # accepted; seed 1, a figure-eight, too where a set has four seeds)
+    limits(Args(command="limits", groups=["both=a,b", "c=c"], by_shape=True))
+    out = capsys.readouterr().out
+    assert "limits --groups both=a,b c=c --by-shape`" in out
+    assert "| group | circle | fig8 |" in out
+    assert "| both | 3 of 3 | 1 of 3 |" in out and "| c | 2 of 2 | 1 of 2 |" in out
     with pytest.raises(UserError, match="--against 'z'"):
         limits(Args(command="limits", groups=["a=a"], against="z"))
