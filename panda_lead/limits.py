@@ -157,6 +157,7 @@ class Check:
     worst_margin: float  # max over every limit of peak value / limit
     worst_limit: str  # which limit, e.g. "joint 2 jerk" or "tip acceleration"
     margins: dict  # limit name -> peak / limit
+    worst_time: float = float("nan")  # s from the first goal: when the worst limit peaks
 
 
 def command_stream(q_goal: np.ndarray, dt: float, q_start: np.ndarray | None = None,
@@ -195,13 +196,17 @@ def check_many(q_goals: np.ndarray, dt: float, q_start: np.ndarray | None = None
     first = int(round((2 * dt + skip) / robot_dt))  # two rest periods precede the first goal
     n = q.shape[1]
     margins: list[dict[str, float]] = [{} for _ in range(n)]
+    peaks_at: list[dict[str, int]] = [{} for _ in range(n)]  # limit name -> its peak's sample
     vel, acc, jerk = (v[first:] for v in derivatives(stream, robot_dt))
     for name, values, limits in (("velocity", vel, JOINT_VEL), ("acceleration", acc, JOINT_ACC),
                                  ("jerk", jerk, JOINT_JERK)):
-        peak = np.abs(values).max(axis=0) / limits if len(values) else np.zeros((n, 7))
+        size = np.abs(values)
+        peak = size.max(axis=0) / limits if len(values) else np.zeros((n, 7))
+        at = size.argmax(axis=0) if len(values) else np.zeros((n, 7), dtype=int)
         for i in range(n):
             for j in range(7):
                 margins[i][f"joint {j + 1} {name}"] = float(peak[i, j])
+                peaks_at[i][f"joint {j + 1} {name}"] = int(at[i, j])
     del vel, acc, jerk
     for i in range(n):
         tip = tip_positions(stream[:, i])
@@ -210,8 +215,11 @@ def check_many(q_goals: np.ndarray, dt: float, q_start: np.ndarray | None = None
                                        strict=True):
             norm = np.linalg.norm(values[first:], axis=1)
             margins[i][f"tip {name}"] = float(norm.max() / limit) if len(norm) else 0.0
+            peaks_at[i][f"tip {name}"] = int(norm.argmax()) if len(norm) else 0
     out = []
-    for m in margins:
+    for m, at in zip(margins, peaks_at, strict=True):
         worst = max(m, key=m.get)
-        out.append(Check(bool(m[worst] <= 1.0), m[worst], worst, m))
+        # the stream's sample -> s from the first goal (two rest periods precede it)
+        when = (first + at[worst]) * robot_dt - 2 * dt
+        out.append(Check(bool(m[worst] <= 1.0), m[worst], worst, m, when))
     return out

@@ -132,6 +132,11 @@ class Args:
     """limits: a group's label; each group's accepted share is also given minus that group's,
     paired by trajectory (each group's sets averaged per trajectory), with a 95% bootstrap CI
     over trajectories (--bootstrap resamples)."""
+    lost_against: str = ""
+    """limits: a group's label; also list, per other group, the episodes that group's sets accept
+    and this group's refuse (set paired with set, or all with its one set): the worst limit, when
+    it peaks, when the two sets' leads part, and how far the peak lies from a spline's waypoint
+    (where the spline's acceleration steps)."""
     by_shape: bool = False
     """limits: also a table of each group's accepted episodes per shape (where the differences
     between controllers lie)."""
@@ -449,9 +454,10 @@ def limits(args: Args) -> None:
 
     groups = _groups(args)
     labels = [label for label, _ in groups]
-    if args.against and args.against not in labels:
-        raise UserError(f"--against {args.against!r} is not a group's label; the groups: "
-                        + ", ".join(labels))
+    for flag, label in (("--against", args.against), ("--lost-against", args.lost_against)):
+        if label and label not in labels:
+            raise UserError(f"{flag} {label!r} is not a group's label; the groups: "
+                            + ", ".join(labels))
     shares: dict[str, dict[int, float]] = {}  # label -> trajectory -> accepted share of its sets
     counts: dict[str, tuple[int, int]] = {}  # label -> (episodes, accepted)
     shapes: dict[int, str] = {}  # trajectory -> its shape
@@ -468,6 +474,7 @@ def limits(args: Args) -> None:
         counts[label] = (sum(map(len, per_seed.values())), sum(map(sum, per_seed.values())))
     flag = f" --against {shlex.quote(args.against)}" if args.against else ""
     flag += " --by-shape" if args.by_shape else ""
+    flag += f" --lost-against {shlex.quote(args.lost_against)}" if args.lost_against else ""
     print(f"`uv run studies/online_correction.py limits --groups {shlex.join(args.groups)}{flag}`: "
           f"episodes a real Panda would accept from {SKIP_S:g} s on (docs/deploy.md's check)"
           + (f"; each group minus {args.against!r}, paired by trajectory (each group's sets "
@@ -500,6 +507,59 @@ def limits(args: Args) -> None:
                         for ok in oks]
                 cells.append(f"{sum(runs)} of {len(runs)}")
             print(f"| {label} | {' | '.join(cells)} |")
+    if args.lost_against:
+        _lost_episodes(groups, args.lost_against)
+
+
+def _lost_episodes(groups: list[tuple[str, list[str]]], against: str) -> None:
+    """limits --lost-against: per group, the episodes ``against``'s sets accept and the group's
+    refuse, with where the refusal comes from."""
+    from collections import Counter
+
+    from deploy import accepted_by_arm
+
+    from panda_lead.metrics.pairing import load_set
+    from panda_lead.rollout import ROLLOUT_DIR
+    from panda_lead.trajectory import sample
+
+    reference = dict(groups)[against]
+    for label, prefixes in groups:
+        if label == against:
+            continue
+        if len(reference) not in (1, len(prefixes)):
+            raise UserError(f"--lost-against {against!r}: its {len(reference)} sets pair neither "
+                            f"with {label!r}'s {len(prefixes)} nor all with one")
+        rows = []
+        for i, prefix in enumerate(prefixes):
+            ref_prefix = reference[i if len(reference) > 1 else 0]
+            mine, theirs = load_set(prefix, ROLLOUT_DIR), load_set(ref_prefix, ROLLOUT_DIR)
+            checks, ref_checks = accepted_by_arm(mine), accepted_by_arm(theirs)
+            for seed in sorted(set(checks) & set(ref_checks)):
+                if not ref_checks[seed].accepted or checks[seed].accepted:
+                    continue
+                c, r = checks[seed], mine[seed]
+                apart = np.flatnonzero(np.any(r.lead != theirs[seed].lead, axis=1))
+                part = r.t[apart[0]] if len(apart) and apart[0] > 0 else None
+                traj = sample(seed)
+                seg = traj.params.get("segment_time") if traj.shape == r.meta.get("shape") else None
+                waypoint = (min(c.worst_time % seg, seg - c.worst_time % seg) if seg else None)
+                rows.append((prefix, seed, r.meta.get("shape", "?"), c, part, waypoint))
+        print(f"\nEpisodes {against!r} accepts and {label!r} refuses (set paired with set): "
+              f"the worst limit, its peak / limit, when it peaks (s), when the two leads part (s; "
+              f"- where they differ from the start), the peak's distance to the nearest spline "
+              f"waypoint (s).\n\n| set | seed | shape | worst limit | margin | peaks at | leads part "
+              f"at | to a waypoint |\n|---|---|---|---|---|---|---|---|")
+        for prefix, seed, shape, c, part, waypoint in rows:
+            cells = [f"{x:.2f}" if x is not None else "-" for x in (part, waypoint)]
+            print(f"| {prefix} | {seed} | {shape} | {c.worst_limit} | {c.worst_margin:.2f} | "
+                  f"{c.worst_time:.2f} | {cells[0]} | {cells[1]} |")
+        parted = [abs(c.worst_time - part) <= 0.1 for *_, c, part, _ in rows if part is not None]
+        near = [w <= 0.05 for *_, w in rows if w is not None]
+        kinds = ", ".join(f"{k} {n}" for k, n in Counter(row[3].worst_limit for row in rows)
+                          .most_common())
+        print(f"\n{label}: {len(rows)} episodes lost ({kinds or 'none'}); the worst peak within "
+              f"0.1 s of the leads parting in {sum(parted)} of {len(parted)}, within 0.05 s of a "
+              f"spline waypoint in {sum(near)} of {len(near)}.")
 
 
 def figure_points(groups: list[tuple[str, list[str]]], n_boot: int) -> tuple[list[dict], list]:

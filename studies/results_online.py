@@ -236,6 +236,16 @@ def online_steps() -> list[Step]:
                 "feedforward with its correction faded in, collision-aware":
                     ["feedforward_repetitive_clear_fade"]}
     steps.append(_groups_step(f"{on}/limits_by_shape.md", "limits", by_shape, "--by-shape"))
+    # ... and, episode by episode, where each loss comes from: the correction switched on at once
+    # against the study alone (ideal world and latency 3), and the study alone against the rival
+    lost = {"lost_to_correction": {"hardware study alone": late100,
+                                   "gated correction, at once": [f"{p}_repetitive_guarded"
+                                                                 for p in late100]},
+            "lost_to_correction_delay3": latency,
+            "lost_to_rival": {"feedforward alone": ["feedforward"],
+                              "hardware study alone": late100}}
+    steps += [_groups_step(f"{on}/{out}.md", "limits", groups, "--lost-against", next(iter(groups)))
+              for out, groups in lost.items()]
     # ... through 3 steps of latency, faded in over 0.2 s (results_prepare.FADED_CONDITION: the
     # trade tuning_fade.md shows, not its rule's choice)
     latency_faded = {**latency, "with its correction faded in over 0.2 s, latency 3": [

@@ -142,6 +142,19 @@ def test_rollouts_record_the_commanded_goals(tmp_path):
     assert load(old).q_goal is None
 
 
+def test_the_check_says_when_the_worst_limit_peaks():
+    """A kink in joint 2's goals (its velocity jumps at 1.0 s, as a correction switched on at
+    once makes it do): the worst limit is joint 2's acceleration, peaking within a control
+    period or two of the kink, whether the kink is early or late in the episode."""
+    for kink in (1.0, 1.73):
+        t = np.arange(300) * DT
+        q = np.tile(HOME, (len(t), 1))
+        q[:, 1] += 0.3 * np.clip(t - kink, 0, None)  # at rest, then 0.3 rad/s from the kink on
+        got = limits.check(q, DT, q_start=HOME, skip=0.5)
+        assert got.worst_limit == "joint 2 acceleration"
+        assert abs(got.worst_time - kink) < 2 * DT
+
+
 def test_many_episodes_at_once_check_as_each_alone():
     q = np.stack([sine_goals(6, a, 2 * np.pi * 3.0) for a in (0.02, 0.05, 0.08)])
     together = limits.check_many(q, DT, skip=0.3)
@@ -149,3 +162,4 @@ def test_many_episodes_at_once_check_as_each_alone():
         alone = limits.check(episode, DT, skip=0.3)
         assert got.worst_limit == alone.worst_limit
         assert got.margins == pytest.approx(alone.margins, rel=1e-12)
+        assert got.worst_time == pytest.approx(alone.worst_time)

@@ -912,3 +912,42 @@ def test_limits_count_the_episodes_a_panda_would_accept(tmp_path, monkeypatch, c
     assert "| both | 3 of 3 | 1 of 3 |" in out and "| c | 2 of 2 | 1 of 2 |" in out
     with pytest.raises(UserError, match="--against 'z'"):
         limits(Args(command="limits", groups=["a=a"], against="z"))
+
+
+def test_limits_list_the_episodes_a_group_loses_and_where(tmp_path, monkeypatch, capsys):
+    """limits --lost-against: the episodes the reference accepts and a group refuses, with the
+    worst limit, when it peaks, when the two sets' leads part (here from 0.41 s on) and the
+    peak's distance to a spline waypoint (a fly trajectory, peaking 0.03 s before its second)."""
+    from types import SimpleNamespace
+
+    sys.path.insert(0, str(REPO / "studies"))
+    import deploy
+    from online_correction import Args, limits
+
+    monkeypatch.chdir(tmp_path)
+    seg = trajectory.sample(5, "fly").params["segment_time"]
+    for prefix in ("ref", "mine"):
+        for seed, shape in ((0, "circle"), (1, "fig8"), (5, "fly")):
+            r = on_its_trajectory(offset_rollout(0.01, T=120, seed=seed, shape=shape))
+            if prefix == "mine":
+                r.lead = np.asarray(r.lead, dtype=float).copy()
+                r.lead[40:] += 0.01
+            rollout.save(r, rollout.rollout_path(prefix, seed, tmp_path / "rollouts"))
+
+    def check(rollouts):  # the reference accepts all; "mine" refuses seeds 0 and 5
+        return {s: SimpleNamespace(accepted=not r.lead.any() or s == 1,
+                                   worst_limit="joint 2 acceleration", worst_margin=1.5,
+                                   worst_time=0.45 if s == 0 else 2 * seg - 0.03)
+                for s, r in rollouts.items()}
+
+    monkeypatch.setattr(deploy, "accepted_by_arm", check)
+    limits(Args(command="limits", groups=["ref=ref", "mine=mine"], lost_against="ref"))
+    out = capsys.readouterr().out
+    assert "limits --groups ref=ref mine=mine --lost-against ref`" in out
+    assert "| mine | 0 | circle | joint 2 acceleration | 1.50 | 0.45 | 0.41 | - |" in out
+    peak = f"{2 * seg - 0.03:.2f}"
+    assert f"| mine | 5 | fly | joint 2 acceleration | 1.50 | {peak} | 0.41 | 0.03 |" in out
+    assert ("mine: 2 episodes lost (joint 2 acceleration 2); the worst peak within 0.1 s of the "
+            "leads parting in 1 of 2, within 0.05 s of a spline waypoint in 1 of 1.") in out
+    with pytest.raises(UserError, match="--lost-against 'z'"):
+        limits(Args(command="limits", groups=["a=ref"], lost_against="z"))
