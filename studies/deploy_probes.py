@@ -202,10 +202,6 @@ def lost_paths(args: Args, steps: int, seeds: list[int]) -> None:
     latency, the filtered one under noise, else the analytic lead) is accepted on and the first
     model is not (counted the other way too): per lost path, the limit that binds, its peak /
     limit and when the peak comes (s), beside the rival's."""
-    from panda_lead.core import home_qpos
-    from panda_lead.limits import ROBOT_DT, command_stream, derivatives
-
-    order = {"velocity": 0, "acceleration": 1, "jerk": 2}  # derivatives()'s outputs
     for cond in args.conditions:
         ctrls = controllers_for(cond, args.models[:1], steps)
         rival = next((r for r in RIVALS if r in ctrls), "Analytic")
@@ -218,14 +214,8 @@ def lost_paths(args: Args, steps: int, seeds: list[int]) -> None:
               f"{len(gained)}", flush=True)
         for s in lost:
             r, c = rs[model][s], checks[model][s]
-            when = ""
-            kind = c.worst_limit.split()  # "joint 2 acceleration" or "tip jerk"
-            if kind[0] == "joint":
-                stream = command_stream(r.q_goal, r.dt, home_qpos())
-                first = int(round((2 * r.dt + SKIP_S) / ROBOT_DT))
-                values = derivatives(stream, ROBOT_DT)[order[kind[2]]][first:, int(kind[1]) - 1]
-                when = f" at {SKIP_S + np.argmax(np.abs(values)) * ROBOT_DT:.2f} s"
-            print(f"  {s} {r.meta.get('shape', '?')}: {c.worst_limit} {c.worst_margin:.2f}{when}"
+            print(f"  {s} {r.meta.get('shape', '?')}: {c.worst_limit} {c.worst_margin:.2f} at "
+                  f"{c.worst_time:.2f} s"
                   f" (rival: {checks[rival][s].worst_limit} {checks[rival][s].worst_margin:.2f})",
                   flush=True)
 
