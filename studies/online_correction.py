@@ -462,12 +462,14 @@ def limits(args: Args) -> None:
     counts: dict[str, tuple[int, int]] = {}  # label -> (episodes, accepted)
     shapes: dict[int, str] = {}  # trajectory -> its shape
     per_set: dict[str, dict[int, list[bool]]] = {}  # label -> trajectory -> accepted, per set
+    checked: dict[str, dict] = {}  # set -> trajectory -> its check (for --lost-against)
     for label, prefixes in groups:
         per_seed: dict[int, list[bool]] = {}
         for prefix in prefixes:
             rollouts = load_set(prefix, ROLLOUT_DIR)
             shapes.update((seed, r.meta.get("shape", "?")) for seed, r in rollouts.items())
-            for seed, c in accepted_by_arm(rollouts).items():
+            checked[prefix] = accepted_by_arm(rollouts)
+            for seed, c in checked[prefix].items():
                 per_seed.setdefault(seed, []).append(bool(c.accepted))
         per_set[label] = per_seed
         shares[label] = {seed: float(np.mean(v)) for seed, v in per_seed.items()}
@@ -508,15 +510,13 @@ def limits(args: Args) -> None:
                 cells.append(f"{sum(runs)} of {len(runs)}")
             print(f"| {label} | {' | '.join(cells)} |")
     if args.lost_against:
-        _lost_episodes(groups, args.lost_against)
+        _lost_episodes(groups, args.lost_against, checked)
 
 
-def _lost_episodes(groups: list[tuple[str, list[str]]], against: str) -> None:
+def _lost_episodes(groups: list[tuple[str, list[str]]], against: str, checked: dict) -> None:
     """limits --lost-against: per group, the episodes ``against``'s sets accept and the group's
-    refuse, with where the refusal comes from."""
+    refuse, with where the refusal comes from (``checked``: each set's checks, made once)."""
     from collections import Counter
-
-    from deploy import accepted_by_arm
 
     from panda_lead.metrics.pairing import load_set
     from panda_lead.rollout import ROLLOUT_DIR
@@ -533,7 +533,7 @@ def _lost_episodes(groups: list[tuple[str, list[str]]], against: str) -> None:
         for i, prefix in enumerate(prefixes):
             ref_prefix = reference[i if len(reference) > 1 else 0]
             mine, theirs = load_set(prefix, ROLLOUT_DIR), load_set(ref_prefix, ROLLOUT_DIR)
-            checks, ref_checks = accepted_by_arm(mine), accepted_by_arm(theirs)
+            checks, ref_checks = checked[prefix], checked[ref_prefix]
             for seed in sorted(set(checks) & set(ref_checks)):
                 if not ref_checks[seed].accepted or checks[seed].accepted:
                     continue
