@@ -29,7 +29,8 @@ tip jerk, one point per group of sets (labelled CONTROLLER @ WORLD), with two-le
 results/studies/online/planned_path.png. ``limits`` counts, per group of sets, the episodes a
 real Panda would accept (docs/deploy.md's check), with --against LABEL each group's share minus
 that group's, paired by trajectory (results/studies/online/limits_clearance.md), with --by-shape
-also per shape (limits_by_shape.md). ``windows``
+also per shape (limits_by_shape.md), with --lost-against LABEL the episodes each group loses
+against LABEL's and where each loss comes from (lost_to_correction.md). ``windows``
 prints, per shape, each group's mean error in consecutive windows of the episode and the
 shape's lap times (results/studies/online/windows.md). ``play`` and ``tune`` take --clearance
 for the collision-aware IK under the lead and the rival alike, and --fade for a correction that
