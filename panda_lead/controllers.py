@@ -159,10 +159,13 @@ def make_predicting_analytic(tau: float = DEFAULT_TAU):
 # They read each arm's target path ahead from its trajectory (panda_lead/preview.py); settings
 # tuned on seeds.TUNE_SEEDS with `uv run studies/preview_rivals.py`
 # (results/studies/preview/rivals_tuning.md), never on the test seeds.
-PREVIEW_RIVALS = ("future_target", "feedforward")
+PREVIEW_RIVALS = ("future_target", "feedforward", "feedforward_plan")
 FUTURE_TAU = 0.04
 FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.02, 0.8, 0.01
 FEEDFORWARD_CLIP = True  # the correction clipped to what the motors can push (2.13 cm, not 2.77)
+# the feedforward that follows its plan where the arm can (rivals_tuning_plan.md): from the
+# fallback (the feedforward above) to the plan by a smoothstep from 0.2 s over 0.2 s
+PLAN_HANDOVER = (0.2, 0.2)
 
 
 def make_future_target(tau: float = FUTURE_TAU):
@@ -179,3 +182,12 @@ def make_feedforward(tau: float = FEEDFORWARD_TAU, gain: float = FEEDFORWARD_GAI
     from .preview import make_feedforward as make
 
     return make(tau, gain, tau_ik, clip)
+
+
+def make_planned_feedforward(handover: tuple[float, float] = PLAN_HANDOVER):
+    """The feedforward that follows its plan open-loop wherever the arm can, the feedforward
+    above elsewhere (action joint_target): see preview.make_planned_feedforward."""
+    from .preview import make_planned_feedforward as make
+
+    return make(handover, dict(tau=FEEDFORWARD_TAU, gain=FEEDFORWARD_GAIN,
+                               tau_ik=FEEDFORWARD_TAU_IK, clip=FEEDFORWARD_CLIP))

@@ -35,6 +35,10 @@ class Args:
     use: controllers.FEEDFORWARD_CLIP; off by default, as the first two rounds were run)."""
     future: bool = True
     """Also tune the future-target lead (--no-future: the feedforward's grid alone)."""
+    plan_settings: tuple[str, ...] = ()
+    """Settings of the feedforward that follows its plan where the arm can (feedforward_plan,
+    its fallback the feedforward in use), start:ramp:ahead (s; ahead 'half': half a control
+    period); when given, these are tuned instead of the feedforward's grid."""
 
 
 def mean_errors(config, act, seeds) -> tuple[float, float]:
@@ -57,6 +61,8 @@ def main(args: Args) -> None:
     flags += "" if args.future else " --no-future"
     if args.ff_settings != Args.ff_settings:
         flags += " --ff-settings " + " ".join(args.ff_settings)
+    if args.plan_settings:
+        flags += " --plan-settings " + " ".join(args.plan_settings)
     print(f"`uv run studies/preview_rivals.py{flags}` at commit {commit}; tuning seeds "
           f"{TUNE_SEEDS[0]}-{TUNE_SEEDS[-1]} ({len(TUNE_SEEDS)}), {args.duration:g} s episodes; "
           "mean / settled (t >= 0.5 s) tracking error, cm\n")
@@ -70,6 +76,9 @@ def main(args: Args) -> None:
         print(f"| future target | tau {tau} s | {future[tau][0]:.2f} | {future[tau][1]:.2f} |",
               flush=True)
     joint = config.replace(action="joint_target")
+    if args.plan_settings:
+        _tune_plan(args, joint)
+        return
     ff = {}
     for setting in args.ff_settings:
         tau, gain, tau_ik = setting.split(":")
@@ -88,6 +97,29 @@ def main(args: Args) -> None:
           f"target tau {controllers.FUTURE_TAU} s; feedforward tau {controllers.FEEDFORWARD_TAU}, "
           f"gain {controllers.FEEDFORWARD_GAIN}, IK look-ahead {controllers.FEEDFORWARD_TAU_IK}, "
           f"clipped {controllers.FEEDFORWARD_CLIP}.")
+
+
+def _tune_plan(args: Args, joint) -> None:
+    from panda_lead import controllers, preview
+    from panda_lead.seeds import TUNE_SEEDS
+
+    fallback = dict(tau=controllers.FEEDFORWARD_TAU, gain=controllers.FEEDFORWARD_GAIN,
+                    tau_ik=controllers.FEEDFORWARD_TAU_IK, clip=controllers.FEEDFORWARD_CLIP)
+    m, s = mean_errors(joint, controllers.make_feedforward(), TUNE_SEEDS)
+    print(f"| model-based feedforward (in use) | tau {fallback['tau']} s, gain {fallback['gain']}, "
+          f"IK look-ahead {fallback['tau_ik']} | {m:.2f} | {s:.2f} |", flush=True)
+    plan = {}
+    for setting in args.plan_settings:
+        start, ramp, ahead = setting.split(":")
+        act = preview.make_planned_feedforward((float(start), float(ramp)), fallback,
+                                               None if ahead == "half" else float(ahead))
+        plan[setting] = mean_errors(joint, act, TUNE_SEEDS)
+        print(f"| feedforward that follows its plan | handover from {start} s over {ramp} s, "
+              f"plan read {ahead if ahead == 'half' else ahead + ' s'} ahead | "
+              f"{plan[setting][0]:.2f} | {plan[setting][1]:.2f} |", flush=True)
+    best = min(plan, key=lambda k: plan[k][0])
+    print(f"\nbest: {best} ({plan[best][0]:.2f} cm). In use: handover "
+          f"{controllers.PLAN_HANDOVER}, plan read half a control period ahead.")
 
 
 if __name__ == "__main__":  # a UserError (bad input) is one line and exit 2

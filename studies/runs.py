@@ -211,8 +211,9 @@ BASELINES = {"classical": ("classical", {}), "analytic": ("analytic", {}),
              "analytic_500hz": ("analytic", {"ik": {"substep_ik": True}}),
              # the classical rivals that KNOW THE PLANNED PATH (issue 37; tuned on the tuning
              # seeds, results/studies/preview/rivals_tuning.md): never beside causal rows
-             "future_target": ("future_target", {}), "feedforward": ("feedforward", {})}
-KNOWS_PATH = ("future_target", "feedforward")
+             "future_target": ("future_target", {}), "feedforward": ("feedforward", {}),
+             "feedforward_plan": ("feedforward_plan", {})}
+KNOWS_PATH = ("future_target", "feedforward", "feedforward_plan")
 
 
 def baselines(args: Args) -> None:

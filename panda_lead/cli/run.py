@@ -30,12 +30,14 @@ class Args:
     prefix: str = "eval"
     """Rollout set name (a plain name): files go to <rollouts-dir>/<prefix>/seed_NNNN.npz."""
     controller: Literal["policy", "classical", "analytic", "ilc", "future_target",
-                        "feedforward"] = "policy"
+                        "feedforward", "feedforward_plan"] = "policy"
     """Which lead: a trained policy, none (classical), v*tau + a*tau^2/2 (analytic), the
     ILC ORACLE (replays each trajectory and learns its lead from the errors it saw: a ceiling,
     not a controller; started from the --model's lead by default, see --ilc), or a rival that
     knows the planned path: the IK aimed at the future target p(t + tau) (future_target), or
-    joint goals that invert the simulated servos on the planned joint path (feedforward)."""
+    joint goals that invert the simulated servos on the planned joint path (feedforward), or
+    those goals followed open-loop wherever the arm can follow the whole plan, the feedforward
+    elsewhere (feedforward_plan)."""
     model: Path | None = None
     """Policy zip with its sidecar (default: the headline model, models.DEFAULT_MODEL, in
     ./archive or the archive shipped with the package)."""

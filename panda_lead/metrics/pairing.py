@@ -19,7 +19,8 @@ from .stats import Row, peak_speed, rollout_metrics, summarize
 
 # Display names for the usual prefixes (--headline without --labels).
 CONTROLLER_LABELS = {"classical": "Classical", "analytic": "Analytic", "policy": "RL+Lead",
-                     "feedforward": "Feedforward", "future_target": "Future target"}
+                     "feedforward": "Feedforward", "future_target": "Future target",
+                     "feedforward_plan": "Feedforward, plan"}
 
 
 DEFAULT_LABELS = {"ikpd": "Classical", "analytic": "Analytic", "eval": "RL+Lead"}
