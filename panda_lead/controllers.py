@@ -164,8 +164,8 @@ FUTURE_TAU = 0.04
 FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.02, 0.8, 0.01
 FEEDFORWARD_CLIP = True  # the correction clipped to what the motors can push (2.13 cm, not 2.77)
 # the feedforward that follows its plan where the arm can (rivals_tuning_plan.md): from the
-# fallback (the feedforward above) to the plan by a smoothstep from 0.2 s over 0.2 s
-PLAN_HANDOVER = (0.2, 0.2)
+# fallback (the feedforward above) to the plan by a smoothstep from 0.2 s over 0.4 s
+PLAN_HANDOVER = (0.2, 0.4)
 
 
 def make_future_target(tau: float = FUTURE_TAU):
