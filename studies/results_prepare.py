@@ -148,7 +148,8 @@ HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
 # (every seed's model committed, archive/seeds/, for the per-seed tables)
 # the classical controllers' sets (ikpd.py): prefix -> its flags
 BASELINES = {"classical": [], "analytic": ["--controller", "analytic"],
-             "feedforward": ["--controller", "feedforward"]}
+             "feedforward": ["--controller", "feedforward"],
+             "feedforward_plan": ["--controller", "feedforward_plan"]}
 POLICY_SETS = [HEADLINE, PREVIOUS_HEADLINE, PREVIOUS, "v5_err_decay", "v5_5m", "indep_v5", "ikfree_long",
                "preview_5m", "preview_continued_10m", "preview_finetuned_10m", HARDWARE, LOOPED,
                LOOPED_FT]
@@ -421,6 +422,15 @@ def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: floa
                  *length, *aware, "--force")
 
 
+def _baselines_missing(root: Path) -> bool:
+    """Whether results/runs/baselines.json is absent or lacks one of runs.BASELINES (a rival
+    added later)."""
+    from runs import BASELINES as NAMES
+
+    path = root / "results/runs/baselines.json"
+    return not path.exists() or not set(NAMES) <= set(json.loads(path.read_text()))
+
+
 def _run(root: Path, *argv: str) -> None:
     """Run one of the repo's scripts; if it fails (its own message printed above: a set
     another run is playing, a missing model), stop with one line naming it."""
@@ -485,8 +495,8 @@ def _sweeps(root: Path) -> None:
             found = [f for f in found if f not in unfinished]
             if found:
                 _run(root, *runs, "summarize", "--study", study, "--runs", *found)
-    if not (root / "results/runs/baselines.json").exists():
-        _run(root, *runs, "baselines")
+    if _baselines_missing(root):
+        _run(root, *runs, "baselines")  # computes only the ones the file lacks
     for name, (study, folders) in CHOSEN.items():
         dirs = [f"sweeps/{f}/runs" for f in folders if (root / f"sweeps/{f}/runs").is_dir()]
         if not (root / f"archive/{name}.zip").exists() and dirs:

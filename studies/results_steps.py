@@ -324,6 +324,19 @@ def table_steps() -> list[Step]:
     steps.append(Step((f"{pv}/{HS}_vs_feedforward.md",),
                       ("studies/runs.py", "compare", "--study", HS, "--against-study",
                        "baseline:feedforward"), _runs(HS, "baselines.json"), stdout=True))
+    # the feedforward that follows its plan open-loop where the arm can (the stronger rival:
+    # results/studies/preview/rivals_tuning_plan.md), against the feedforward, the preset's
+    # study and the hardware study (each alone, per shape: where the plan is followable)
+    late = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_5m"
+    steps.append(Step((f"{pv}/feedforward_plan_vs_feedforward.md",),
+                      ("studies/runs.py", "compare", "--study", "baseline:feedforward_plan",
+                       "--against-study", "baseline:feedforward", "--by-shape"),
+                      _runs("baselines.json"), stdout=True))
+    steps += [Step((out,), ("studies/runs.py", "compare", "--study", study, "--against-study",
+                            "baseline:feedforward_plan", "--by-shape"),
+                   _runs(study, "baselines.json"), stdout=True)
+              for study, out in ((HS, f"{pv}/{HS}_vs_feedforward_plan.md"),
+                                 (late, f"results/studies/{late}/vs_feedforward_plan.md"))]
     # the learned residual on the feedforward rival (issue 37; knows the planned path)
     for study in ("preview_feedforward_5m", "preview_feedforward_settled_5m"):
         out = f"results/studies/{study}"
