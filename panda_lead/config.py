@@ -42,13 +42,16 @@ PATH_FEATURES = ("target_preview", "preview_jerk")
 def knows_path(env) -> bool:
     """Whether a controller on env ``env`` (an EnvConfig, a sidecar's env dict, or observation
     features alone) knows the planned path ahead: it observes a PATH_FEATURES feature, or
-    its env runs the model-based feedforward (EnvConfig.feedforward) or the lap-to-lap
-    correction (EnvConfig.repetitive_gain, which knows each path's lap time) with its lead."""
+    its env runs the model-based feedforward (EnvConfig.feedforward), follows the plan where
+    the arm can (EnvConfig.follow_plan) or runs the lap-to-lap correction
+    (EnvConfig.repetitive_gain, which knows each path's lap time) with its lead."""
     if isinstance(env, dict):
         features = env.get("obs_features")
-        feedforward = env.get("feedforward", False) or env.get("repetitive_gain", 0.0)
+        feedforward = (env.get("feedforward", False) or env.get("follow_plan", False)
+                       or env.get("repetitive_gain", 0.0))
     elif hasattr(env, "obs_features"):
-        features, feedforward = env.obs_features, env.feedforward or env.repetitive_gain
+        features = env.obs_features
+        feedforward = env.feedforward or env.follow_plan or env.repetitive_gain
     else:
         features, feedforward = env, False
     return bool(feedforward) or any(f in PATH_FEATURES for f in features or ())
@@ -278,6 +281,15 @@ class EnvConfig:
     (controllers.make_feedforward's settings, tuned on the tuning seeds). With a zero lead
     this is the feedforward rival; a policy on it learns a residual. Needs action "lead"; not
     with target_delay or noisy_ik_target (the plan is known, not measured)."""
+    follow_plan: bool = False
+    """The planner's hand (issue 37; knows the planned path): an episode whose whole planned
+    path the arm can follow (no motor asked for more than its force range, no goal past a
+    joint limit: preview._PathCache.within) hands its joint goal over from the lead's to the
+    plan's own (the feedforward's planned joint path and servo correction, read half a control
+    period ahead), by a smoothstep over controllers.PLAN_HANDOVER; an episode the arm cannot
+    follow keeps the lead throughout. With a zero lead on the feedforward env this is the
+    feedforward_plan rival. Needs action "lead"; not with ik.substep_ik, ik.clearance or
+    limit_lead_only."""
     repetitive_gain: float = field(default=0.0, metadata={"range": (0.0, 2.0)})
     """The lap-to-lap (repetitive) correction in the loop, added to the policy's lead each
     control step (panda_lead/online.py, the law studies/online_correction.py plays on top of a
@@ -389,6 +401,11 @@ class EnvConfig:
                                  or self.noisy_ik_target):
             raise UserError("feedforward puts the feedforward rival under a Cartesian lead: "
                             "it needs action 'lead', and no target_delay or noisy_ik_target")
+        if self.follow_plan and (self.action != "lead" or self.ik.substep_ik
+                                 or self.ik.clearance or self.limit_lead_only):
+            raise UserError("follow_plan hands a Cartesian lead's joint goal over to the plan: "
+                            "it needs action 'lead', and no ik.substep_ik, ik.clearance or "
+                            "limit_lead_only")
         if self.repetitive_gain and (
                 self.action != "lead" or any(self.obs_noise.values()) or self.obs_delay
                 or self.action_delay or self.target_delay or self.random_delay

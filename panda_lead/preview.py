@@ -214,12 +214,21 @@ def make_planned_feedforward(handover: tuple[float, float], fallback: dict,
         planned = row[..., 0] + row[..., 1]
         back = fallback_goal(task)
         followable = cache.within[:, :task.config.episode_steps + 1].all(axis=1)
-        x = (task.core.time - start) / ramp if ramp > 0 else (task.core.time >= start) * 1.0
-        x = np.clip(x, 0.0, 1.0)
-        w = np.where(followable, x * x * (3.0 - 2.0 * x), 0.0)[:, None]
+        w = handover_weight(task.core.time, (start, ramp), followable)[:, None]
         return joint_target_action(task.core, (1.0 - w) * back + w * planned)
 
     return act
+
+
+def handover_weight(time: np.ndarray, handover: tuple[float, float],
+                    followable: np.ndarray) -> np.ndarray:
+    """(N,) the plan's weight in the joint goal at each slot's time: a smoothstep from
+    handover[0] s over handover[1] s (a step at handover[0] when the ramp is 0), 0 where the
+    plan is not followable."""
+    start, ramp = handover
+    x = (time - start) / ramp if ramp > 0 else (time >= start) * 1.0
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(followable, x * x * (3.0 - 2.0 * x), 0.0)
 
 
 def joint_target_action(core, goal: np.ndarray) -> np.ndarray:

@@ -132,6 +132,15 @@ class LeadTask:
             self._ff_settings = (controllers.FEEDFORWARD_TAU / self.dt,
                                  controllers.FEEDFORWARD_TAU_IK / self.dt,
                                  controllers.FEEDFORWARD_GAIN)
+        # The plan followed where the arm can (EnvConfig.follow_plan): each slot's planned
+        # joint goals, and whether its whole episode is followable, once per reset
+        self._plan = None
+        if c.follow_plan:
+            from . import controllers, preview
+
+            self._plan = self._feedforward or preview._PathCache(0.0, joint_path=True, clip=True)
+            self._handover = controllers.PLAN_HANDOVER
+            self._followable = np.zeros(n, dtype=bool)
         # The lap-to-lap correction in the loop (EnvConfig.repetitive_gain): online.py's law,
         # the one a trained lead is played with
         self._corrector = None
@@ -231,6 +240,10 @@ class LeadTask:
             self._set_preview(ids)
         if self._feedforward is not None:  # the new episodes' planned paths, once per reset
             self._feedforward.update(self)
+        if self._plan is not None:
+            self._plan.update(self)  # (a no-op when it is the feedforward's own cache)
+            self._followable[ids] = self._plan.within[ids, :self.config.episode_steps + 1].all(
+                axis=1)
         self.prev_action[ids] = 0.0
         self._recent[ids] = 0.0
         self.lead[ids] = 0.0
@@ -529,7 +542,9 @@ class LeadTask:
                 lead = self.lead + self._lead_alpha * (goal - self.lead)
                 self.lead = (lead if self._lead_smoothed is None
                              else np.where(self._lead_smoothed[:, None], lead, goal))
-            if self._feedforward is not None:
+            if self._plan is not None:
+                core.step(joint_goal=self._plan_goal(shift))
+            elif self._feedforward is not None:
                 core.step(*self._feedforward_step(self.lead))
             else:
                 if self._ref_hist is not None:  # limit_lead_only: the zero lead's goal first
@@ -544,6 +559,24 @@ class LeadTask:
             lo, hi = core.joint_limits
             home = core.home
             core.step(joint_goal=home + np.where(applied < 0, home - lo, hi - home) * applied)
+
+    def _plan_goal(self, shift: np.ndarray | None) -> np.ndarray:
+        """EnvConfig.follow_plan's joint goal: the one the core would command for the lead
+        (the feedforward's under EnvConfig.feedforward), handed over to the plan's goal half a
+        control period ahead on the followable slots (preview.make_planned_feedforward's law)."""
+        core = self.core
+        if self._feedforward is not None:
+            lead, offset = self._feedforward_step(self.lead)
+            goal = core.ik(core.target()[0] + lead) + offset
+        else:
+            goal = core.ik(core.target()[0] + (self.lead if shift is None else self.lead + shift))
+        from .preview import handover_weight
+
+        w = handover_weight(core.time, self._handover, self._followable)
+        if w.any():
+            row = self._plan.at(self._plan.goal, self, 0.5)
+            goal = goal + w[:, None] * (row[..., 0] + row[..., 1] - goal)
+        return goal
 
     def _feedforward_step(self, lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The core's (lead, joint offset) under EnvConfig.feedforward: the IK aimed at the

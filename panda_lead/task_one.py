@@ -81,7 +81,7 @@ class LeadTaskOne(LeadTask):
                            and not c.target_delay
                            and not c.noisy_ik_target and not c.target_filter
                            and not c.arm_filter and not c.feedforward and not c.w_limit
-                           and not c.repetitive_gain)
+                           and not c.repetitive_gain and not c.follow_plan)
         self._plain_obs = not self._delayed and c.obs_stack == 1  # _observed() is the identity
         self._action_weighed = bool(c.w_action or c.w_action_change)
         self._offset_rows = self._jerk_rows = None  # the preview's rows (reset sets them)

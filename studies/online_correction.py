@@ -108,6 +108,10 @@ class Args:
     """tune and play: the collision-aware IK's clearance (m; --env.ik.clearance, clearance.py),
     for the lead and the rival alike; 0: the plain IK. The correction acts on the target the IK
     aims at, so the IK's damper still has the last word on every joint step."""
+    follow_plan: bool = False
+    """tune and play: the planner's hand (EnvConfig.follow_plan): an episode whose whole plan
+    the arm can follow hands its joint goal over to the plan (the feedforward_plan rival's
+    law); the others keep the lead and its correction. Knows the planned path."""
     seeds: str = "0-999"
     """play: trajectory seeds (test seeds only for reported results)."""
     duration: float = 5.0
@@ -203,6 +207,8 @@ def _base(args: Args):
         raise UserError(f"--clearance must be a distance >= 0 (m), got {args.clearance}")
     if args.clearance:
         late = {**(late or {}), "ik": {"clearance": args.clearance}}
+    if args.follow_plan:
+        late = {**(late or {}), "follow_plan": True}
     if args.base == "analytic":
         return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
@@ -254,6 +260,7 @@ def tune(args: Args) -> None:
     given += f" --max-error {args.max_error:g}" if args.max_error else ""
     given += f" --fade {args.fade:g}" if args.fade else ""
     given += f" --clearance {args.clearance:g}" if args.clearance else ""
+    given += " --follow-plan" if args.follow_plan else ""
     grid_flags = "".join(f" --{name.replace('_', '-')} {' '.join(f'{v:g}' for v in getattr(args, name))}"
                          for name in ("integral_gains", "repetitive_gains", "advances", "smooths")
                          if getattr(args, name) != getattr(Args, name))
@@ -310,6 +317,8 @@ def play(args: Args) -> None:
             raise UserError("--oracle replays in the ideal world: drop --condition")
         if args.clearance:
             raise UserError("--oracle replays with the plain IK: drop --clearance")
+        if args.follow_plan:
+            raise UserError("--oracle replays a Cartesian lead: drop --follow-plan")
         if args.base == "feedforward":
             raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
                             "env; the feedforward base has none (its oracle is not built)")

@@ -285,6 +285,36 @@ def online_steps() -> list[Step]:
                         for p in late100],
                        ("feedforward + correction, collision-aware",
                         "hardware lead + gated correction, collision-aware"))]
+    # ... and the planner's hand (results_prepare.PLANNED; EnvConfig.follow_plan): each episode
+    # whose whole plan the arm can follow handed over to the plan, the rest kept: what it adds to
+    # the study alone and with its correction, the learned stack with it against the rival with
+    # it, and what the Panda's limits accept then
+    planned = {"hardware study alone": late100,
+               "hardware study, planner's hand": [f"{p}_plan" for p in late100],
+               "hardware study, gated correction faded in": faded[
+                   "hardware study, gated correction faded in"],
+               "hardware study, gated correction faded in, planner's hand": [
+                   f"{p}_repetitive_guarded_fade_plan" for p in late100],
+               "feedforward that follows its plan": ["feedforward_plan"],
+               "feedforward with its correction faded in, planner's hand": [
+                   "feedforward_repetitive_fade_plan"]}
+    steps += [_summary(f"{on}/late100_plan_vs_alone.md", [(p, f"{p}_plan") for p in late100],
+                       ("alone", "planner's hand"), paired=True),
+              _summary(f"{on}/late100_repetitive_guarded_fade_plan_vs_fade.md",
+                       [(f"{p}_repetitive_guarded_fade", f"{p}_repetitive_guarded_fade_plan")
+                        for p in late100], ("gated correction faded in", "the same, planner's hand"),
+                       paired=True),
+              _summary(f"{on}/late100_plan_vs_feedforward_plan.md",
+                       [("feedforward_plan", f"{p}_plan") for p in late100],
+                       ("feedforward that follows its plan", "hardware lead, planner's hand")),
+              _summary(f"{on}/late100_repetitive_guarded_fade_plan_vs_feedforward_repetitive"
+                       "_fade_plan.md",
+                       [("feedforward_repetitive_fade_plan", f"{p}_repetitive_guarded_fade_plan")
+                        for p in late100],
+                       ("feedforward + correction faded in, planner's hand",
+                        "hardware lead + gated correction faded in, planner's hand")),
+              _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
+                           "hardware study, gated correction faded in")]
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
     looped = "v5_err_decay_repetitive_5m"

@@ -287,12 +287,26 @@ FADED_CONDITION = {f"late100_s{k}_repetitive_delay3_fade": (
     for k in range(1, 6)}
 
 
+# the planner's hand (EnvConfig.follow_plan, online_correction.py --follow-plan): an episode
+# whose whole plan the arm can follow hands its joint goal over to the plan (the
+# feedforward_plan rival's law), the others keep their controller: the hardware study alone and
+# with its faded gated correction, and the feedforward rival with its faded correction (the
+# plan-following rival with the rival's own correction where the plan cannot be followed).
+# Test seeds 0-999, same registry form as FADED with follow_plan last
+PLANNED = {
+    **{f"late100_s{k}_plan": ("policy", f"seeds/{LATE100}_s{k}", None, None, 0.0, None, True)
+       for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_guarded_fade_plan": (*FADED[f"late100_s{k}_repetitive_guarded_fade"],
+                                                      True) for k in range(1, 6)},
+    "feedforward_repetitive_fade_plan": (*FADED["feedforward_repetitive_fade"], True)}
+
+
 def online_prefixes() -> set[str]:
     """Every rollout set the online corrections' tables may read that prepare plays: the
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
                   ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE,
-                  FADED, FADED_CONDITION)
+                  FADED, FADED_CONDITION, PLANNED)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -380,6 +394,7 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
     _variant_sets(root, wanted, LONG_EPISODES, LONG_SEEDS, LONG_S)
     _variant_sets(root, wanted, CLEARANCE, "0-999")
     _variant_sets(root, wanted, FADED, "0-999")
+    _variant_sets(root, wanted, PLANNED, "0-999")
     oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
     for prefix, (spec, gate) in oracles.items():
@@ -392,18 +407,21 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
 
 
 def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: float = 5.0) -> None:
-    """A registry's sets (LONG_EPISODES, CLEARANCE, FADED: prefix -> (base, archived model or
-    None, the online spec or None, its gate[, the IK's clearance[, its fade]])) (re)played when
-    missing, or played at another length or clearance, by another model or with another
-    setting."""
+    """A registry's sets (LONG_EPISODES, CLEARANCE, FADED, PLANNED: prefix -> (base, archived
+    model or None, the online spec or None, its gate[, the IK's clearance[, its fade[,
+    follow_plan]]])) (re)played when missing, or played at another length or clearance, by
+    another model or with another setting."""
     for prefix, (base, model, spec, gate, *rest) in registry.items():
         if not wanted(prefix):
             continue
         clearance = rest[0] if rest else 0.0
         fade = rest[1] if len(rest) > 1 else None
+        plan = rest[2] if len(rest) > 2 else False
         meta = _first_meta(root, prefix)
+        env = meta.get("env") or {}
         stale = (meta.get("duration") != duration
-                 or ((meta.get("env") or {}).get("ik") or {}).get("clearance") != clearance
+                 or (env.get("ik") or {}).get("clearance") != clearance
+                 or bool(env.get("follow_plan", False)) != plan
                  or (spec and _other_setting(meta.get("online") or {}, spec, gate, fade))
                  or (model and meta.get("model_sha256") != _archived_sha(root, model)))
         if not stale:
@@ -411,9 +429,11 @@ def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: floa
         length = ("--duration", str(duration)) if duration != 5.0 else ()
         if spec:
             aware = ("--clearance", str(clearance)) if clearance else ()
+            aware += ("--follow-plan",) if plan else ()
             _play_online(root, spec, seeds, prefix, *length, *aware, gate=gate, fade=fade)
             continue
         aware = ("--env.ik.clearance", str(clearance)) if clearance else ()
+        aware += ("--env.follow-plan", "True") if plan else ()
         if base == "policy":
             _run(root, "eval.py", "--seeds", seeds, "--prefix", prefix, "--model",
                  f"archive/{model}.zip", *length, *aware, "--force")
