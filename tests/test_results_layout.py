@@ -365,3 +365,47 @@ def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_p
         monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
         rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_fade"})
         assert len(calls) == int(replayed)
+
+
+def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_path, monkeypatch):
+    """The planner's hand (results_prepare.PLANNED) on a bare root: the lead-alone sets through
+    eval.py's env flag, the corrected ones through online_correction.py's, each with its faded
+    setting; a set played with the plan is kept, one played without it is played again."""
+    import results_prepare as rp
+
+    calls, played = _prepare_bare(tmp_path, monkeypatch, rp.PLANNED)
+    for prefix, argv in played.items():
+        if "repetitive" in prefix:
+            assert "--follow-plan" in argv and float(argv[argv.index("--fade") + 1]) == rp.FADE
+        else:
+            assert argv[0] == "eval.py"
+            assert argv[argv.index("--env.follow-plan") + 1] == "True"
+    assert played["feedforward_repetitive_fade_plan"][3] == "feedforward"
+
+    spec = rp.PLANNED["late100_s1_repetitive_guarded_fade_plan"][2]
+    without = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": 0.0}},
+               "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE,
+                          "fade": rp.FADE}}
+    with_plan = {**without, "env": {**without["env"], "follow_plan": True}}
+    for meta, replayed in ((with_plan, False), (without, True)):
+        calls.clear()
+        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
+        rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_fade_plan"})
+        assert len(calls) == int(replayed)
+
+
+def test_a_baselines_file_without_a_rival_added_later_is_completed(tmp_path):
+    """results_prepare runs runs.py baselines when the file is missing or lacks one of
+    runs.BASELINES (the command then computes only the missing ones)."""
+    import json
+
+    import results_prepare as rp
+    from runs import BASELINES
+
+    path = tmp_path / "results/runs/baselines.json"
+    assert rp._baselines_missing(tmp_path)
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps({"test_seeds": "0-999", **{n: {} for n in BASELINES}}))
+    assert not rp._baselines_missing(tmp_path)
+    path.write_text(json.dumps({n: {} for n in BASELINES if n != "feedforward_plan"}))
+    assert rp._baselines_missing(tmp_path)

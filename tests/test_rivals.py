@@ -108,7 +108,8 @@ def test_ikpd_writes_both_rivals_rollouts_labelled_as_knowing_the_path(tmp_path)
         assert len(files) == 2
         meta = json.loads(str(np.load(files[0])["meta"]))
         assert meta["controller"] == name and meta["knows_path"] is True
-        assert meta["tau"] == build(name, 30).meta["tau"]
+        settings = json.loads(json.dumps(build(name, 30).meta))  # as the file stores them
+        assert {k: meta[k] for k in settings} == settings
 
 
 @pytest.mark.parametrize("name", controllers.PREVIEW_RIVALS)
@@ -117,7 +118,8 @@ def test_a_rival_refuses_the_wrong_action_kind(name):
     task = LeadTask(EnvConfig(episode_steps=3, action=wrong), 1)
     obs = task.reset(None, [1])
     act = {"future_target": controllers.make_future_target,
-           "feedforward": controllers.make_feedforward}[name]()
+           "feedforward": controllers.make_feedforward,
+           "feedforward_plan": controllers.make_planned_feedforward}[name]()
     with pytest.raises(ValueError, match="needs action"):
         act(obs, task)
 
@@ -220,3 +222,147 @@ def test_preview_rivals_tunes_the_clipped_feedforward_when_asked(monkeypatch, ca
             "0.03:0.9:none` at commit") in out
     assert "future target |" not in out
     assert "best: feedforward 0.03:0.9:none (2.00 cm)" in out
+
+
+# --- the feedforward that follows its plan (feedforward_plan, EnvConfig.follow_plan) ---------
+
+FOLLOWABLE, BEYOND = 5, 38  # 1.5 s episodes: the arm can follow seed 5's plan, not seed 38's
+
+
+def test_within_marks_the_steps_a_motor_or_a_joint_limit_refuses():
+    """_PathCache.within, computed independently from the unclipped goals: a step is within when
+    every motor's force kp (u - q_d) - kv qd_d is inside its forcerange and every goal inside
+    the core's joint limits; the fast circle has steps outside, the followable path none."""
+    task = LeadTask(EnvConfig(episode_steps=150), 2)
+    task.reset(None, [FOLLOWABLE, BEYOND])
+    cache = preview._PathCache(0.0, joint_path=True)  # unclipped
+    cache.update(task)
+    m = load_model()
+    kp, kv = m.actuator_gainprm[:N_JOINTS, 0], -m.actuator_biasprm[:N_JOINTS, 2]
+    q, corr = cache.goal[..., 0], cache.goal[..., 1]
+    force = kp * corr - kv * np.gradient(q, task.dt, axis=1)
+    lo, hi = task.core.joint_limits
+    want = ((np.abs(force) <= m.actuator_forcerange[:N_JOINTS, 1] + 1e-9)
+            & (q + corr >= lo) & (q + corr <= hi)).all(axis=-1)
+    np.testing.assert_array_equal(cache.within, want)
+    steps = slice(0, 151)
+    assert cache.within[0, steps].all() and not cache.within[1, steps].all()
+
+
+def _goals(config, act, seeds, steps):
+    """The core's joint goal after each of ``steps`` control steps, (steps, N, 7)."""
+    task = LeadTask(config, len(seeds))
+    obs = task.reset(None, seeds)
+    out = []
+    for _ in range(steps):
+        obs, *_ = task.step(act(obs, task))
+        out.append(task.core.q_goal.copy())
+    return np.array(out), task
+
+
+def test_the_plan_is_followed_after_the_handover_and_only_where_the_arm_can():
+    """Before the handover starts the goal is the feedforward's (the fallback); once it is
+    over, a followable episode's goal is the plan's own half a control period ahead, and an
+    episode the arm cannot follow keeps the feedforward's throughout."""
+    config = EnvConfig(episode_steps=150, action="joint_target")
+    seeds = [FOLLOWABLE, BEYOND]
+    start, ramp = 0.05, 0.1  # steps 0-4 fallback, steps from 15 on the plan
+    planned, task = _goals(config, preview.make_planned_feedforward(
+        (start, ramp), dict(tau=0.02, gain=0.8, tau_ik=0.01, clip=True)), seeds, 40)
+    fallback, _ = _goals(config, preview.make_feedforward(0.02, 0.8, 0.01, True), seeds, 40)
+    cache = preview._PathCache(0.0, joint_path=True, clip=True)
+    cache.update(task)
+    plan = cache.goal[..., 0] + cache.goal[..., 1]
+    atol = 1e-6  # the float32 joint_target action
+    np.testing.assert_allclose(planned[:5], fallback[:5], atol=atol)
+    for k in range(15, 40):  # the goal of step k: the plan at k + 1/2
+        np.testing.assert_allclose(planned[k, 0], 0.5 * (plan[0, k] + plan[0, k + 1]), atol=atol)
+    assert np.abs(planned[15:, 0] - fallback[15:, 0]).max() > 1e-3  # else the test shows nothing
+    np.testing.assert_allclose(planned[:, 1], fallback[:, 1], atol=atol)
+
+
+def test_following_the_plan_tracks_a_followable_path_closer_than_the_feedforward():
+    config = EnvConfig(episode_steps=250, action="joint_target")
+    plan = record_many(config, controllers.make_planned_feedforward(), [FOLLOWABLE, 3])
+    ff = record_many(config, controllers.make_feedforward(), [FOLLOWABLE, 3])
+    for a, b in zip(ff, plan, strict=True):  # well after the handover (over at 0.6 s)
+        assert b.error[150:].mean() < 0.5 * a.error[150:].mean()
+
+
+def test_the_planners_hand_on_the_feedforward_env_is_the_plan_following_rival():
+    """EnvConfig.follow_plan with a zero lead on the feedforward env plays what the
+    feedforward_plan rival plays (its goal through the float32 action: ~1e-7 rad)."""
+    config = EnvConfig(episode_steps=120)
+    rival = record_many(config.replace(action="joint_target"),
+                        controllers.make_planned_feedforward(), [FOLLOWABLE, BEYOND])
+    in_env = record_many(config.replace(feedforward=True, follow_plan=True),
+                         controllers.classical, [FOLLOWABLE, BEYOND])
+    for a, b in zip(rival, in_env, strict=True):
+        np.testing.assert_allclose(b.error, a.error, atol=1e-5)
+
+
+def test_the_planners_hand_leaves_an_episode_the_arm_cannot_follow_as_it_was():
+    """Where the plan is not followable the lead keeps the arm: bit-identical to the env without
+    follow_plan; where it is, the plan takes over (the analytic lead's error changes)."""
+    config = EnvConfig(episode_steps=100)
+    act = controllers.make_analytic()
+    plain = record_many(config, act, [BEYOND, FOLLOWABLE])
+    planned = record_many(config.replace(follow_plan=True), act, [BEYOND, FOLLOWABLE])
+    np.testing.assert_array_equal(planned[0].error, plain[0].error)
+    np.testing.assert_array_equal(planned[0].q_goal, plain[0].q_goal)
+    assert np.abs(planned[1].error - plain[1].error).max() > 1e-3
+    assert planned[1].error[60:].mean() < plain[1].error[60:].mean()
+
+
+@pytest.mark.parametrize("bad", [dict(action="joint"), dict(ik={"clearance": 0.02}),
+                                 dict(ik={"substep_ik": True})])
+def test_the_planners_hand_refuses_what_it_cannot_hand_over(bad):
+    from panda_lead.config import knows_path
+    from panda_lead.errors import UserError
+
+    assert knows_path(EnvConfig(follow_plan=True))
+    assert knows_path({"obs_features": ["ee_pos"], "follow_plan": True})
+    with pytest.raises(UserError, match="follow_plan hands"):
+        EnvConfig.from_dict({"follow_plan": True, **bad})
+
+
+def test_the_handover_weight_is_a_smoothstep_and_zero_where_the_plan_is_not_followable():
+    t = np.array([0.0, 0.2, 0.3, 0.4, 0.6, 0.9, 0.3])
+    followable = np.array([True] * 6 + [False])
+    w = preview.handover_weight(t, (0.2, 0.4), followable)
+    np.testing.assert_allclose(w, [0.0, 0.0, 0.15625, 0.5, 1.0, 1.0, 0.0])
+    np.testing.assert_array_equal(preview.handover_weight(t, (0.3, 0.0), followable),
+                                  [0, 0, 1, 1, 1, 1, 0])
+
+
+def test_feedforward_plan_refuses_a_tau():
+    from panda_lead.errors import UserError
+
+    with pytest.raises(UserError, match="--tau does not apply to feedforward_plan"):
+        build("feedforward_plan", 10, tau=0.03)
+
+
+def test_preview_rivals_tunes_the_plan_following_feedforward_when_asked(monkeypatch, capsys):
+    """studies/preview_rivals.py --plan-settings: each start:ramp:ahead is built on the
+    feedforward in use as its fallback, 'half' leaves the plan's reading at its default, and
+    the header carries the flag. Scoring stubbed: what is tested is the grid."""
+    sys.path.insert(0, str(ROOT / "studies"))
+    import preview_rivals
+
+    built = []
+    monkeypatch.setattr(preview, "make_planned_feedforward",
+                        lambda handover, fallback, ahead=None: built.append(
+                            (handover, fallback, ahead)) or (lambda obs, task: None))
+    scores = iter([(4.0, 3.0), (2.1, 1.0), (2.0, 0.9), (1.9, 0.95)])  # analytic, feedforward,
+    # then the two settings
+    monkeypatch.setattr(preview_rivals, "mean_errors", lambda *_: next(scores))
+    preview_rivals.main(preview_rivals.Args(future=False,
+                                            plan_settings=("0.2:0.4:half", "0:0:0.01")))
+    out = capsys.readouterr().out
+    fallback = dict(tau=controllers.FEEDFORWARD_TAU, gain=controllers.FEEDFORWARD_GAIN,
+                    tau_ik=controllers.FEEDFORWARD_TAU_IK, clip=controllers.FEEDFORWARD_CLIP)
+    assert built == [((0.2, 0.4), fallback, None), ((0.0, 0.0), fallback, 0.01)]
+    assert ("`uv run studies/preview_rivals.py --no-future --plan-settings 0.2:0.4:half 0:0:0.01` "
+            "at commit") in out
+    assert "best: 0:0:0.01 (1.90 cm)" in out
+
