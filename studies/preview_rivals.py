@@ -35,6 +35,10 @@ class Args:
     use: controllers.FEEDFORWARD_CLIP; off by default, as the first two rounds were run)."""
     future: bool = True
     """Also tune the future-target lead (--no-future: the feedforward's grid alone)."""
+    followable: str = ""
+    """A seed range (e.g. 0-999): instead of tuning, count per shape the episodes whose whole
+    planned path the arm can follow (the ones feedforward_plan and EnvConfig.follow_plan hand
+    over to the plan)."""
     plan_settings: tuple[str, ...] = ()
     """Settings of the feedforward that follows its plan where the arm can (feedforward_plan,
     its fallback the feedforward in use), start:ramp:ahead (s; ahead 'half': half a control
@@ -49,7 +53,42 @@ def mean_errors(config, act, seeds) -> tuple[float, float]:
     return 100 * float(np.mean([r.error.mean() for r in rollouts])), 100 * float(np.mean(settled))
 
 
+def followable(seeds: str, duration: float) -> None:
+    """Per shape: how many of the episodes on ``seeds`` the arm can follow all the way (every
+    step of the plan within the motors' force ranges and the joint limits)."""
+    from panda_lead import preview
+    from panda_lead.config import EnvConfig
+    from panda_lead.core import control_dt
+    from panda_lead.seeds import parse_seed_range
+    from panda_lead.task import LeadTask
+
+    picked = list(parse_seed_range(seeds))
+    steps = int(round(duration / control_dt()))
+    flags, shapes = [], []
+    for i in range(0, len(picked), 250):  # a batch's plans at once, 250 arms at a time
+        batch = picked[i:i + 250]
+        task = LeadTask(EnvConfig(episode_steps=steps), len(batch))
+        task.reset(None, batch)
+        cache = preview._PathCache(0.0, joint_path=True)
+        cache.update(task)
+        flags += cache.within[:, :steps + 1].all(axis=1).tolist()
+        shapes += [t.shape for t in task.trajs]
+    length = f" --duration {duration:g}" if duration != Args.duration else ""
+    print(f"`uv run studies/preview_rivals.py --followable {seeds}{length}`: seeds {seeds} "
+          f"({len(picked)}), {duration:g} s episodes; an episode is followable when every step "
+          "of its planned path asks no motor for more than its force range and keeps every "
+          "joint goal inside the limits (preview._PathCache.within)\n")
+    print("| shape | episodes | followable | share |\n|---|---|---|---|")
+    flags, shapes = np.array(flags), np.array(shapes)
+    for shape in (*sorted(set(shapes)), "all"):
+        mask = shapes == shape if shape != "all" else np.ones_like(flags)
+        print(f"| {shape} | {mask.sum()} | {flags[mask].sum()} | {flags[mask].mean():.1%} |")
+
+
 def main(args: Args) -> None:
+    if args.followable:
+        followable(args.followable, args.duration)
+        return
     from panda_lead import controllers, preview
     from panda_lead.config import EnvConfig
     from panda_lead.core import control_dt

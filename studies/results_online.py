@@ -314,7 +314,8 @@ def online_steps() -> list[Step]:
                        ("feedforward + correction faded in, planner's hand",
                         "hardware lead + gated correction faded in, planner's hand")),
               _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
-                           "hardware study, gated correction faded in")]
+                           "hardware study, gated correction faded in"),
+              _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
     looped = "v5_err_decay_repetitive_5m"

@@ -324,6 +324,9 @@ def table_steps() -> list[Step]:
     steps.append(Step((f"{pv}/{HS}_vs_feedforward.md",),
                       ("studies/runs.py", "compare", "--study", HS, "--against-study",
                        "baseline:feedforward"), _runs(HS, "baselines.json"), stdout=True))
+    # which test episodes the arm can follow all the way (feedforward_plan hands those over)
+    steps.append(Step((f"{pv}/followable.md",), ("studies/preview_rivals.py", "--followable",
+                                                  "0-999"), (), stdout=True))
     # the feedforward that follows its plan open-loop where the arm can (the stronger rival:
     # results/studies/preview/rivals_tuning_plan.md), against the feedforward, the preset's
     # study and the hardware study (each alone, per shape: where the plan is followable)
