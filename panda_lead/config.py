@@ -288,7 +288,8 @@ class EnvConfig:
     plan's own (the feedforward's planned joint path and servo correction, read half a control
     period ahead), by a smoothstep over controllers.PLAN_HANDOVER; an episode the arm cannot
     follow keeps the lead throughout. With a zero lead on the feedforward env this is the
-    feedforward_plan rival. Needs action "lead"; not with ik.substep_ik, ik.clearance or
+    feedforward_plan rival. Under ik.clearance the plan is the collision-aware IK's path and
+    every handed-over goal passes the damper. Needs action "lead"; not with ik.substep_ik or
     limit_lead_only."""
     repetitive_gain: float = field(default=0.0, metadata={"range": (0.0, 2.0)})
     """The lap-to-lap (repetitive) correction in the loop, added to the policy's lead each
@@ -402,10 +403,9 @@ class EnvConfig:
             raise UserError("feedforward puts the feedforward rival under a Cartesian lead: "
                             "it needs action 'lead', and no target_delay or noisy_ik_target")
         if self.follow_plan and (self.action != "lead" or self.ik.substep_ik
-                                 or self.ik.clearance or self.limit_lead_only):
+                                 or self.limit_lead_only):
             raise UserError("follow_plan hands a Cartesian lead's joint goal over to the plan: "
-                            "it needs action 'lead', and no ik.substep_ik, ik.clearance or "
-                            "limit_lead_only")
+                            "it needs action 'lead', and no ik.substep_ik or limit_lead_only")
         if self.repetitive_gain and (
                 self.action != "lead" or any(self.obs_noise.values()) or self.obs_delay
                 or self.action_delay or self.target_delay or self.random_delay

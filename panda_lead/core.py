@@ -361,17 +361,23 @@ class ArmBatch:
 
 
     def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None,
-             joint_goal: np.ndarray | None = None) -> None:
+             joint_goal: np.ndarray | None = None, off_itself: np.ndarray | None = None
+             ) -> None:
         """One control step of every arm: IK on (target + lead), plus an optional joint-goal
         offset (rad, kept inside the joint limits), then the PD for the substeps. With
         ``joint_goal`` (rad) the IK is skipped: the goal goes to the PD as it is (clipped to
-        the limits). With ``ik.substep_ik`` the IK is solved before every substep instead, on
-        the target at that instant, the lead held."""
+        the limits; under ik.clearance projected by the damper, on the slots ``off_itself``
+        marks when given: a goal the IK already projected is not projected twice). With
+        ``ik.substep_ik`` the IK is solved before every substep instead, on the target at that
+        instant, the lead held."""
         if self.target_pos is None:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
         if joint_goal is not None:
-            self.q_goal = np.clip(self._off_itself(joint_goal), self._lo, self._hi)
+            projected = self._off_itself(joint_goal)
+            if off_itself is not None and self._clearance is not None:
+                projected = np.where(off_itself[:, None], projected, joint_goal)
+            self.q_goal = np.clip(projected, self._lo, self._hi)
         elif self.ik_config.substep_ik:
             sensors = self._substep_ik_step(lead, joint_offset)
         else:

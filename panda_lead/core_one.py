@@ -258,12 +258,13 @@ class ArmOne(ArmBatch):
 
     # --- control: the lead step on Python floats --------------------------------------------
     def step(self, lead: np.ndarray | None = None, joint_offset: np.ndarray | None = None,
-             joint_goal: np.ndarray | None = None) -> None:
+             joint_goal: np.ndarray | None = None, off_itself: np.ndarray | None = None
+             ) -> None:
         """ArmBatch.step; a lead step (when ``lean``) through step_one."""
         if self.lean and joint_goal is None and joint_offset is None:
             self.step_one(None if lead is None else np.broadcast_to(lead, (1, 3))[0].tolist())
             return
-        super().step(lead, joint_offset, joint_goal)
+        super().step(lead, joint_offset, joint_goal, off_itself)
 
     def step_one(self, lead: list[float] | None = None) -> tuple[bool, float, bool]:
         """step(lead) of the arm (when ``lean``), the lead as Python floats: the same numbers

@@ -543,7 +543,7 @@ class LeadTask:
                 self.lead = (lead if self._lead_smoothed is None
                              else np.where(self._lead_smoothed[:, None], lead, goal))
             if self._plan is not None:
-                core.step(joint_goal=self._plan_goal(shift))
+                core.step(*self._plan_goal(shift))
             elif self._feedforward is not None:
                 core.step(*self._feedforward_step(self.lead))
             else:
@@ -560,23 +560,27 @@ class LeadTask:
             home = core.home
             core.step(joint_goal=home + np.where(applied < 0, home - lo, hi - home) * applied)
 
-    def _plan_goal(self, shift: np.ndarray | None) -> np.ndarray:
-        """EnvConfig.follow_plan's joint goal: the one the core would command for the lead
-        (the feedforward's under EnvConfig.feedforward), handed over to the plan's goal half a
-        control period ahead on the followable slots (preview.make_planned_feedforward's law)."""
+    def _plan_goal(self, shift: np.ndarray | None) -> tuple:
+        """EnvConfig.follow_plan's core.step arguments: the joint goal the core would command
+        for the lead (the feedforward's under EnvConfig.feedforward), handed over to the plan's
+        goal half a control period ahead on the followable slots
+        (preview.make_planned_feedforward's law); under ik.clearance, the damper projects what
+        the core would have projected (the feedforward's goal, every handed-over goal) and
+        leaves the IK's own goal as the IK left it."""
+        from .preview import handover_weight
+
         core = self.core
         if self._feedforward is not None:
             lead, offset = self._feedforward_step(self.lead)
             goal = core.ik(core.target()[0] + lead) + offset
         else:
             goal = core.ik(core.target()[0] + (self.lead if shift is None else self.lead + shift))
-        from .preview import handover_weight
-
         w = handover_weight(core.time, self._handover, self._followable)
         if w.any():
             row = self._plan.at(self._plan.goal, self, 0.5)
             goal = goal + w[:, None] * (row[..., 0] + row[..., 1] - goal)
-        return goal
+        projected = w > 0 if self._feedforward is None else np.ones(self.n, dtype=bool)
+        return None, None, goal, projected
 
     def _feedforward_step(self, lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The core's (lead, joint offset) under EnvConfig.feedforward: the IK aimed at the

@@ -316,6 +316,29 @@ def online_steps() -> list[Step]:
               _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
                            "hardware study, gated correction faded in"),
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
+    # ... the same on the collision-aware IK, the stack for a real arm
+    aware = {"hardware study, gated correction faded in, collision-aware": faded[
+                 "hardware study, gated correction faded in, collision-aware"],
+             "the same, planner's hand": [f"{p}_repetitive_guarded_clear_fade_plan"
+                                          for p in late100],
+             "feedforward with its correction faded in, collision-aware": [
+                 "feedforward_repetitive_clear_fade"],
+             "the same, planner's hand (rival)": ["feedforward_repetitive_clear_fade_plan"]}
+    steps += [_summary(f"{on}/late100_repetitive_guarded_clear_fade_plan_vs_clear_fade.md",
+                       [(f"{p}_repetitive_guarded_clear_fade",
+                         f"{p}_repetitive_guarded_clear_fade_plan") for p in late100],
+                       ("gated correction faded in, collision-aware", "the same, planner's hand"),
+                       paired=True),
+              _summary(f"{on}/late100_repetitive_guarded_clear_fade_plan_vs_feedforward"
+                       "_repetitive_clear_fade_plan.md",
+                       [("feedforward_repetitive_clear_fade_plan",
+                         f"{p}_repetitive_guarded_clear_fade_plan") for p in late100],
+                       ("feedforward + correction faded in, collision-aware, planner's hand",
+                        "hardware lead + gated correction faded in, collision-aware, planner's "
+                        "hand")),
+              _groups_step(f"{on}/limits_plan_clear.md", "limits", aware, "--against",
+                           "hardware study, gated correction faded in, collision-aware"),
+              _groups_step(f"{on}/excursions_plan_clear.md", "excursions", aware)]
     # ... and trained with it in the loop (EnvConfig.repetitive_gain): each seed against the same
     # seed's plain model with the correction added after training, and against its oracle
     looped = "v5_err_decay_repetitive_5m"

@@ -298,7 +298,13 @@ PLANNED = {
        for k in range(1, 6)},
     **{f"late100_s{k}_repetitive_guarded_fade_plan": (*FADED[f"late100_s{k}_repetitive_guarded_fade"],
                                                       True) for k in range(1, 6)},
-    "feedforward_repetitive_fade_plan": (*FADED["feedforward_repetitive_fade"], True)}
+    "feedforward_repetitive_fade_plan": (*FADED["feedforward_repetitive_fade"], True),
+    # ... and on the collision-aware IK (the plan its collision-aware path, every handed-over
+    # goal through the damper), each controller its own clearance
+    **{f"late100_s{k}_repetitive_guarded_clear_fade_plan": (
+        *FADED[f"late100_s{k}_repetitive_guarded_clear_fade"], True) for k in range(1, 6)},
+    "feedforward_repetitive_clear_fade_plan": (*FADED["feedforward_repetitive_clear_fade"],
+                                               True)}
 
 
 def online_prefixes() -> set[str]:

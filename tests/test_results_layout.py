@@ -377,6 +377,11 @@ def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_
     for prefix, argv in played.items():
         if "repetitive" in prefix:
             assert "--follow-plan" in argv and float(argv[argv.index("--fade") + 1]) == rp.FADE
+            assert ("--clearance" in argv) == ("_clear" in prefix)
+            if "_clear" in prefix:  # the collision-aware ones: each controller its clearance
+                want = (rp.CLEARANCE_RIVAL if prefix.startswith("feedforward")
+                        else rp.CLEARANCE_LEAD)
+                assert float(argv[argv.index("--clearance") + 1]) == want
         else:
             assert argv[0] == "eval.py"
             assert argv[argv.index("--env.follow-plan") + 1] == "True"

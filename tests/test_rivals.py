@@ -314,8 +314,7 @@ def test_the_planners_hand_leaves_an_episode_the_arm_cannot_follow_as_it_was():
     assert planned[1].error[60:].mean() < plain[1].error[60:].mean()
 
 
-@pytest.mark.parametrize("bad", [dict(action="joint"), dict(ik={"clearance": 0.02}),
-                                 dict(ik={"substep_ik": True})])
+@pytest.mark.parametrize("bad", [dict(action="joint"), dict(ik={"substep_ik": True})])
 def test_the_planners_hand_refuses_what_it_cannot_hand_over(bad):
     from panda_lead.config import knows_path
     from panda_lead.errors import UserError
@@ -324,6 +323,39 @@ def test_the_planners_hand_refuses_what_it_cannot_hand_over(bad):
     assert knows_path({"obs_features": ["ee_pos"], "follow_plan": True})
     with pytest.raises(UserError, match="follow_plan hands"):
         EnvConfig.from_dict({"follow_plan": True, **bad})
+
+
+@pytest.mark.parametrize("base", ["lead", "feedforward"])
+def test_on_the_collision_aware_ik_the_hand_still_leaves_what_it_cannot_follow(base):
+    """Under ik.clearance an episode the arm cannot follow keeps its goal bit for bit (the
+    IK's goal not projected twice, the feedforward's projected as before), and a followable one
+    is handed over."""
+    config = EnvConfig(episode_steps=100, feedforward=base == "feedforward").replace(
+        ik={"clearance": 0.03})
+    act = controllers.make_analytic() if base == "lead" else controllers.classical
+    plain = record_many(config, act, [BEYOND, FOLLOWABLE])
+    planned = record_many(config.replace(follow_plan=True), act, [BEYOND, FOLLOWABLE])
+    np.testing.assert_array_equal(planned[0].q_goal, plain[0].q_goal)
+    assert planned[1].error[60:].mean() < plain[1].error[60:].mean()
+
+
+def test_the_damper_projects_a_joint_goal_only_where_asked(monkeypatch):
+    """core.step(joint_goal, off_itself=mask) under ik.clearance: the masked slots' goals as
+    the damper gives them (stubbed here: a visible shift), the others as given; no mask, all
+    projected. The damper itself is clearance.py's (tests/test_clearance.py)."""
+    from panda_lead.core import ArmBatch
+    from panda_lead.ikconfig import IKConfig
+    from panda_lead.trajectory import sample
+
+    core = ArmBatch(2, IKConfig(clearance=0.05))
+    core.reset(trajs=[sample(3), sample(4)], n_steps=5)
+    monkeypatch.setattr(core, "_off_itself", lambda goal: goal - 0.01)
+    goal = np.broadcast_to(core.home, (2, N_JOINTS)).copy()
+    core.step(joint_goal=goal, off_itself=np.array([True, False]))
+    np.testing.assert_allclose(core.q_goal[0], np.clip(goal[0] - 0.01, *core.joint_limits))
+    np.testing.assert_array_equal(core.q_goal[1], goal[1])
+    core.step(joint_goal=goal)
+    np.testing.assert_allclose(core.q_goal, np.clip(goal - 0.01, *core.joint_limits))
 
 
 def test_the_handover_weight_is_a_smoothstep_and_zero_where_the_plan_is_not_followable():

@@ -297,7 +297,7 @@ def test_baselines_computes_only_the_rivals_the_file_lacks(runs, tmp_path, monke
                                        if name not in runs.KNOWS_PATH}}
     (tmp_path / "baselines.json").write_text(json.dumps(old))
     runs.baselines(runs.Args(command="baselines"))
-    assert played == ["future_target", "feedforward"]
+    assert played == ["future_target", "feedforward", "feedforward_plan"]
     out = json.loads((tmp_path / "baselines.json").read_text())
     assert out["classical"] == kept and out["feedforward"] == {"mean_err": [2.0]}
     with pytest.raises(UserError, match="has every baseline; add --force"):
