@@ -60,7 +60,13 @@ class VideoConfig:
 # --- labels ---------------------------------------------------------------------------------
 
 def describe(meta: dict) -> str:
-    """What drove an episode, from the rollout's meta, so a panel is never labelled by guess."""
+    """What drove an episode, from the rollout's meta, so a panel is never labelled by guess
+    (with EnvConfig.follow_plan, the plan has the arm on a followable episode: said too)."""
+    hand = " + plan" if (meta.get("env") or {}).get("follow_plan") else ""
+    return _controller(meta) + hand
+
+
+def _controller(meta: dict) -> str:
     name = meta.get("controller", "?")
     if name == "classical":
         return "classical IK+PD (no lead)"

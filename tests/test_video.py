@@ -59,6 +59,10 @@ def test_compare_needs_two_names_and_a_video():
     ({"controller": "classical"}, "classical IK+PD (no lead)"),
     ({"controller": "analytic", "tau": 0.05}, "analytic lead, tau 0.05 s"),
     ({"controller": "policy", "model": "archive/best.zip"}, "policy lead (best)"),
+    ({"controller": "policy", "model": "archive/best.zip", "env": {"follow_plan": True}},
+     "policy lead (best) + plan"),
+    ({"controller": "analytic", "tau": 0.04, "env": {"follow_plan": False}},
+     "analytic lead, tau 0.04 s"),
 ])
 def test_panels_are_labelled_by_what_drove_them(meta, expected):
     assert video.describe(meta) == expected
