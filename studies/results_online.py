@@ -316,6 +316,20 @@ def online_steps() -> list[Step]:
               _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
                            "hardware study, gated correction faded in"),
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
+    # ... through 3 steps of latency and under 1 cm of noise (results_prepare.PLANNED_CONDITION):
+    # the study with the hand against the rival with it
+    steps += [_summary(f"{on}/late100_repetitive_delay3_hand_vs_feedforward_repetitive_delay3"
+                       "_hand.md",
+                       [("feedforward_repetitive_delay3_hand", f"{p}_repetitive_delay3_hand")
+                        for p in late100],
+                       ("feedforward + correction, latency 3, planner's hand",
+                        "hardware lead + correction, latency 3, planner's hand")),
+              _summary(f"{on}/late100_repetitive_guarded_noise1_plan_hand_vs_feedforward"
+                       "_repetitive_noise1_hand.md",
+                       [("feedforward_repetitive_noise1_hand",
+                         f"{p}_repetitive_guarded_noise1_plan_hand") for p in late100],
+                       ("feedforward + correction, noise 1 cm, planner's hand",
+                        "hardware lead + gated correction, noise 1 cm, planner's hand"))]
     # ... the same on the collision-aware IK, the stack for a real arm
     aware = {"hardware study, gated correction faded in, collision-aware": faded[
                  "hardware study, gated correction faded in, collision-aware"],

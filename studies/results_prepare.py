@@ -307,12 +307,27 @@ PLANNED = {
                                                True)}
 
 
+# ... and the hand through 3 steps of latency and under 1 cm of noise (online_correction.py
+# --condition with --follow-plan; named _hand: noise1_plan is a condition's name): the study's
+# and the rival's corrected sets of those conditions, each as registered there, the plan taking
+# what the arm can follow (prefix -> (spec, condition, gate))
+PLANNED_CONDITION = {
+    **{f"late100_s{k}_repetitive_delay3_hand": (*CONDITION_ONLINE[f"late100_s{k}_repetitive_delay3"],
+                                                None) for k in range(1, 6)},
+    **{f"late100_s{k}_repetitive_guarded_noise1_plan_hand": (
+        *GATED[f"late100_s{k}_repetitive_guarded_noise1_plan"], GATE) for k in range(1, 6)},
+    "feedforward_repetitive_delay3_hand": (*CONDITION_ONLINE["feedforward_repetitive_delay3"],
+                                           None),
+    "feedforward_repetitive_noise1_hand": (*CONDITION_ONLINE["feedforward_repetitive_noise1"],
+                                           None)}
+
+
 def online_prefixes() -> set[str]:
     """Every rollout set the online corrections' tables may read that prepare plays: the
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
                   ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE,
-                  FADED, FADED_CONDITION, PLANNED)
+                  FADED, FADED_CONDITION, PLANNED, PLANNED_CONDITION)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -384,19 +399,24 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
                      or not _in_condition(_first_meta(root, prefix), condition)):
             _run(root, "eval.py", "--seeds", "0-999", "--prefix", prefix, "--model",
                  f"archive/{model}.zip", *_condition_flags(condition), "--force")
-    played = {**{p: (spec, "none", None, None) for p, spec in ONLINE.items()},
-              **{p: (spec, c, None, None) for p, (spec, c) in CONDITION_ONLINE.items()},
-              **{p: (spec, c, GATE, None) for p, (spec, c) in GATED.items()},
-              **{p: (spec, c, None, fade) for p, (spec, c, fade) in FADED_CONDITION.items()}}
-    for prefix, (spec, condition, gate, fade) in played.items():
+    played = {**{p: (spec, "none", None, None, False) for p, spec in ONLINE.items()},
+              **{p: (spec, c, None, None, False) for p, (spec, c) in CONDITION_ONLINE.items()},
+              **{p: (spec, c, GATE, None, False) for p, (spec, c) in GATED.items()},
+              **{p: (spec, c, None, fade, False)
+                 for p, (spec, c, fade) in FADED_CONDITION.items()},
+              **{p: (spec, c, gate, None, True)
+                 for p, (spec, c, gate) in PLANNED_CONDITION.items()}}
+    for prefix, (spec, condition, gate, fade, plan) in played.items():
         if not wanted(prefix):
             continue
         meta, model = _first_meta(root, prefix), spec[1]
         if (_other_setting(meta.get("online") or {}, spec, gate, fade)
                 or not _in_condition(meta, condition, spec[0])
+                or bool((meta.get("env") or {}).get("follow_plan", False)) != plan
                 or (model and meta.get("model_sha256") != _archived_sha(root, model))):
-            _play_online(root, spec, "0-999", prefix, "--condition", condition, gate=gate,
-                         fade=fade)
+            hand = ("--follow-plan",) if plan else ()
+            _play_online(root, spec, "0-999", prefix, "--condition", condition, *hand,
+                         gate=gate, fade=fade)
     _variant_sets(root, wanted, LONG_EPISODES, LONG_SEEDS, LONG_S)
     _variant_sets(root, wanted, CLEARANCE, "0-999")
     _variant_sets(root, wanted, FADED, "0-999")

@@ -414,3 +414,29 @@ def test_a_baselines_file_without_a_rival_added_later_is_completed(tmp_path):
     assert not rp._baselines_missing(tmp_path)
     path.write_text(json.dumps({n: {} for n in BASELINES if n != "feedforward_plan"}))
     assert rp._baselines_missing(tmp_path)
+
+
+def test_the_hand_under_latency_and_noise_is_played_in_its_condition(tmp_path, monkeypatch):
+    """results_prepare.PLANNED_CONDITION: each set played once with --follow-plan under its
+    condition (latency 3 ungated, noise on the plan gated, the rival's as registered there); a
+    set played in that condition without the hand is played again."""
+    import results_prepare as rp
+
+    calls, played = _prepare_bare(tmp_path, monkeypatch, rp.PLANNED_CONDITION)
+    for prefix, argv in played.items():
+        assert "--follow-plan" in argv
+        want = "delay3" if "delay3" in prefix else ("noise1_plan" if "late100" in prefix
+                                                    else "noise1")
+        assert argv[argv.index("--condition") + 1] == want
+        assert ("--max-error" in argv) == ("guarded" in prefix)
+    spec, condition, gate = rp.PLANNED_CONDITION["late100_s2_repetitive_delay3_hand"]
+    from online_correction import condition_overrides
+
+    without = {"model_sha256": "sha", "env": condition_overrides(condition, "policy"),
+               "online": dict(zip(rp.SETTINGS, spec[2:], strict=True))}
+    with_hand = {**without, "env": {**without["env"], "follow_plan": True}}
+    for meta, replayed in ((with_hand, False), (without, True)):
+        calls.clear()
+        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
+        rp.prepare(tmp_path, {"late100_s2_repetitive_delay3_hand"})
+        assert len(calls) == int(replayed)
