@@ -1,7 +1,7 @@
-"""What a controller that knows the planned path can do with it: the two classical rivals of a
-lead that sees the path ahead (issue 37). Both read each arm's whole target path from its
+"""What a controller that knows the planned path can do with it: the classical rivals of a lead
+that sees the path ahead (issue 37). They read each arm's whole target path from its
 trajectory (``task.trajs``: defined for every t >= 0, so also past the episode's end) and
-neither learns anything; their knobs are tuned on the tuning seeds (studies/preview_rivals.py).
+none learns anything; their knobs are tuned on the tuning seeds (studies/preview_rivals.py).
 
 - **future target**: the IK aims at the exact future target p(t + tau) instead of the
   analytic lead's Taylor guess p(t) + v tau + a tau^2 / 2 (a Cartesian lead p(t + tau) - p(t)).
