@@ -25,6 +25,9 @@ none learns anything; their knobs are tuned on the tuning seeds (studies/preview
   can push (its MJCF forcerange, given the damping force kv qd it must also overcome): where
   the planned path asks for more (fast circles near the workspace's edge) an unclipped goal
   only winds the PD up (2.13 cm against 2.77 on the tuning seeds).
+- **the feedforward that follows its plan** (feedforward_plan): where the arm can follow the
+  whole plan, its own joint goals open-loop; elsewhere the feedforward above
+  (make_planned_feedforward). EnvConfig.follow_plan puts the same handover under any lead.
 """
 
 from __future__ import annotations
