@@ -316,6 +316,13 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
                                       "--prefix", "x"], ["--duration", "positive"]),
     ("studies/online_correction.py", ["tune", "--base", "analytic", "--duration", "10"],
      ["--duration is for play"]),
+    ("studies/online_correction.py", ["play", "--base", "analytic", "--follow-plan", "--oracle",
+                                      "--prefix", "x"], ["--oracle", "drop --follow-plan"]),
+    ("ikpd.py", ["--controller", "feedforward_plan", "--tau", "0.03", "--seeds", "0-1",
+                 "--prefix", "x"], ["--tau does not apply to feedforward_plan"]),
+    ("ikpd.py", ["--controller", "classical", "--env.follow-plan", "True",
+                 "--env.ik.substep-ik", "True", "--seeds", "0-1", "--prefix", "x"],
+     ["follow_plan hands", "substep_ik"]),
 ])
 def test_a_study_scripts_bad_input_is_one_line(tmp_path, script, args, words):
     """The study scripts' entry points go through exit_on_user_error and parse_cli like the
