@@ -138,6 +138,16 @@ def online_steps() -> list[Step]:
                                                         "feedforward_repetitive_clear"))
     figure_groups["hardware study + gated correction"].insert(
         0, (off_itself, ",".join(f"{p}_repetitive_guarded_clear" for p in late100)))
+    # ... and with the planner's hand (results_prepare.PLANNED, PLANNED_CONDITION; the ideal
+    # and collision-aware corrections faded in, the noise ones as registered there)
+    figure_groups["feedforward that follows its plan"] = [(ideal, "feedforward_plan")]
+    figure_groups["feedforward + correction + planner's hand"] = [
+        (off_itself, "feedforward_repetitive_clear_fade_plan"),
+        (ideal, "feedforward_repetitive_fade_plan"), (noisy, "feedforward_repetitive_noise1_hand")]
+    figure_groups["hardware study + gated correction + planner's hand"] = [
+        (world, ",".join(f"{p}_repetitive_guarded{mid}" for p in late100))
+        for world, mid in ((off_itself, "_clear_fade_plan"), (ideal, "_fade_plan"),
+                           (noisy, "_noise1_plan_hand"))]
     groups_argv = [f"{name} @ {world}={sets}" for name, worlds in figure_groups.items()
                    for world, sets in worlds]
     read = [s for worlds in figure_groups.values() for _, sets in worlds for s in sets.split(",")]
