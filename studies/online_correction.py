@@ -609,7 +609,7 @@ def figure(args: Args) -> None:
         raise UserError(f"{args.out} exists: --force replaces it")
     points, shared = figure_points(groups, args.bootstrap // 5)
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(11, 6), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(13, 6), constrained_layout=True)
     controllers = list(dict.fromkeys(p["controller"] for p in points))
     worlds = list(dict.fromkeys(p["world"] for p in points))
     # strong hues in the order the groups come (rivals first, say): light shades vanish
