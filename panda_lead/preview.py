@@ -204,8 +204,10 @@ def make_planned_feedforward(handover: tuple[float, float], fallback: dict,
     start, ramp = (float(x) for x in handover)
     if start < 0 or ramp < 0:
         raise ValueError(f"handover start and ramp must be >= 0 s, not {handover}")
+    # one cache for both: clipped as the fallback asks, which changes no row of a followable
+    # episode (nothing there exceeds a motor's force range)
     cache = _PathCache(max(fallback["tau"], fallback.get("tau_ik") or 0.0), joint_path=True,
-                       clip=fallback.get("clip", False))  # the followable plan's rows: unclipped
+                       clip=fallback.get("clip", False))
     fallback_goal = _feedforward_goal(**fallback, cache=cache)
 
     def act(obs, task) -> np.ndarray:
