@@ -156,6 +156,10 @@ class Args:
     """summary: each pair's two sets come from one training seed's model (one model with and
     without the correction, or two continuations of one model): print a seed-paired CI (the
     seeds drawn once for both sides) beside the conservative one."""
+    levels: bool = False
+    """summary: also each side's mean and settled error as a level with its 95% CI (the same
+    two-level bootstrap over training seeds and trajectories), for a target stated as a level
+    (issue 37's settled <= 0.6 cm)."""
     settle_time: float = 0.5
     """summary: the settled error is the mean from this time on (s; 5 for the second half of
     10 s episodes)."""
@@ -361,6 +365,7 @@ def summary(args: Args) -> None:
     named = "" if args.names == Args.names else " --names " + shlex.join(args.names)
     flags = named + (" --paired-seeds" if args.paired_seeds else "")
     flags += f" --settle-time {args.settle_time:g}" if args.settle_time != Args.settle_time else ""
+    flags += " --levels" if args.levels else ""
     print(f"`uv run studies/online_correction.py summary --pairs {' '.join(args.pairs)}{flags}`: "
           f"{seed_set_title(seeds, 'trajectories')}; errors in cm, settled from "
           f"{args.settle_time:g} s; "
@@ -399,6 +404,22 @@ def summary(args: Args) -> None:
               f"{b_name} {per_seed[1].mean():.3f}{spread[1]} ({over}); "
               f"diff {diff:+.3f} [{ci[0]:+.3f}, "
               f"{ci[1]:+.3f}] {'shown' if shown(ci) else 'not shown'}{paired}")
+    if args.levels:
+        _print_levels(arrays, (a_name, b_name), args.bootstrap)
+
+
+def _print_levels(arrays: dict, names: tuple[str, str], n_boot: int) -> None:
+    """Each side's mean and settled error as a level, 95% CI by the two-level bootstrap (its
+    own random stream: the difference CIs above stay as they were)."""
+    from panda_lead.metrics.stats import two_level_bootstrap
+
+    rng = np.random.default_rng(2)
+    print()
+    for k, label in (("mean_err", "mean error (cm)"), ("settled_err", "settled error (cm)")):
+        for name, side in zip(names, arrays[k], strict=True):
+            side = np.array(side)
+            ci, _ = two_level_bootstrap(np.zeros((1, side.shape[1])), side, n_boot, rng)
+            print(f"- level, {label}, {name}: {side.mean():.3f} [{ci[0]:.3f}, {ci[1]:.3f}]")
 
 
 FAR, AFTER = 0.30, 1.0  # m, s: an excursion is the tip this far off after the swing from home

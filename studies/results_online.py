@@ -313,7 +313,7 @@ def online_steps() -> list[Step]:
               _summary(f"{on}/late100_repetitive_guarded_fade_plan_vs_fade.md",
                        [(f"{p}_repetitive_guarded_fade", f"{p}_repetitive_guarded_fade_plan")
                         for p in late100], ("gated correction faded in", "the same, planner's hand"),
-                       paired=True),
+                       paired=True, extra=("--levels",)),
               _summary(f"{on}/late100_plan_vs_feedforward_plan.md",
                        [("feedforward_plan", f"{p}_plan") for p in late100],
                        ("feedforward that follows its plan", "hardware lead, planner's hand")),
@@ -352,7 +352,7 @@ def online_steps() -> list[Step]:
                        [(f"{p}_repetitive_guarded_clear_fade",
                          f"{p}_repetitive_guarded_clear_fade_plan") for p in late100],
                        ("gated correction faded in, collision-aware", "the same, planner's hand"),
-                       paired=True),
+                       paired=True, extra=("--levels",)),
               _summary(f"{on}/late100_repetitive_guarded_clear_fade_plan_vs_feedforward"
                        "_repetitive_clear_fade_plan.md",
                        [("feedforward_repetitive_clear_fade_plan",

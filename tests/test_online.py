@@ -577,3 +577,33 @@ def test_a_faded_correction_keeps_what_the_real_arm_accepts():
     assert not any(c.accepted for c in at_once)
     assert all(c.worst_limit == "joint 2 acceleration" for c in at_once)
     assert all(c.accepted for c in faded)
+
+
+def test_summary_levels_are_each_sides_mean_with_a_ci_around_it(tmp_path, monkeypatch, capsys):
+    """summary --levels: each side's mean and settled error as a level, its CI around it
+    (narrow for near-constant sets, and the difference lines above unchanged by the flag)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    import online_correction as oc
+
+    rng = np.random.default_rng(0)
+    data = {p: {s: {"mean_err": 1.0 + 0.1 * k + 0.01 * rng.standard_normal(),
+                    "settled_err": 0.5 + 0.1 * k + 0.01 * rng.standard_normal(),
+                    "jerk_rms": 400.0} for s in range(50)}
+            for k, p in enumerate(["a1", "b1", "a2", "b2"])}
+    monkeypatch.setattr(oc, "_set_metrics", lambda prefix, settle_time=0.5: data[prefix])
+    outs = []
+    for levels in (False, True):
+        oc.summary(oc.Args(command="summary", pairs=["a1:b1", "a2:b2"], bootstrap=500,
+                           levels=levels))
+        outs.append(capsys.readouterr().out)
+    assert outs[1].startswith(outs[0].split("\n", 1)[0].replace("`:", " --levels`:"))
+    assert outs[0].split("\n", 1)[1] in outs[1]  # the rest of the plain output, unchanged
+    lines = [x for x in outs[1].splitlines() if x.startswith("- level, settled")]
+    assert len(lines) == 2
+    for line, want in zip(lines, (0.6, 0.7), strict=True):  # (0.5 + 0.7) / 2, (0.6 + 0.8) / 2
+        level, lo, hi = (float(x) for x in
+                         line.split(": ")[1].replace("[", "").replace("]", "").replace(",", "")
+                         .split())
+        assert abs(level - want) < 0.01 and lo < level < hi and hi - lo < 0.3
