@@ -303,6 +303,17 @@ def _prepare_bare(root, monkeypatch, registry: dict) -> tuple[list, dict]:
     return calls, played
 
 
+def _replayed(root, monkeypatch, calls: list, prefix: str, meta: dict) -> bool:
+    """Whether results_prepare.prepare plays ``prefix`` again when its first rollout records
+    ``meta`` (``calls``: _prepare_bare's record of the scripts run, cleared first)."""
+    import results_prepare as rp
+
+    calls.clear()
+    monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
+    rp.prepare(root, {prefix})
+    return len(calls) == 1
+
+
 def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, monkeypatch):
     """The collision-aware sets (results_prepare.CLEARANCE) on a bare root: each played once on
     the test seeds' 5 s episodes, the study's with the lead's clearance (eval.py's IK flag
@@ -328,11 +339,8 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
             "env": {"ik": {"clearance": rp.CLEARANCE_LEAD}},
             "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE}}
     plain = {**done, "env": {"ik": {"clearance": 0.0}}}
-    for meta, replayed in ((done, False), (plain, True)):
-        calls.clear()
-        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
-        rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_clear"})
-        assert len(calls) == int(replayed)
+    assert not _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_clear", done)
+    assert _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_clear", plain)
 
 
 def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_path, monkeypatch):
@@ -360,11 +368,8 @@ def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_p
     at_once = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": 0.0}},
                "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE}}
     faded = {**at_once, "online": {**at_once["online"], "fade": rp.FADE}}
-    for meta, replayed in ((faded, False), (at_once, True)):
-        calls.clear()
-        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
-        rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_fade"})
-        assert len(calls) == int(replayed)
+    assert not _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_fade", faded)
+    assert _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_fade", at_once)
 
 
 def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_path, monkeypatch):
@@ -392,11 +397,9 @@ def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_
                "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE,
                           "fade": rp.FADE}}
     with_plan = {**without, "env": {**without["env"], "follow_plan": True}}
-    for meta, replayed in ((with_plan, False), (without, True)):
-        calls.clear()
-        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
-        rp.prepare(tmp_path, {"late100_s1_repetitive_guarded_fade_plan"})
-        assert len(calls) == int(replayed)
+    prefix = "late100_s1_repetitive_guarded_fade_plan"
+    assert not _replayed(tmp_path, monkeypatch, calls, prefix, with_plan)
+    assert _replayed(tmp_path, monkeypatch, calls, prefix, without)
 
 
 def test_a_baselines_file_without_a_rival_added_later_is_completed(tmp_path):
@@ -435,8 +438,5 @@ def test_the_hand_under_latency_and_noise_is_played_in_its_condition(tmp_path, m
     without = {"model_sha256": "sha", "env": condition_overrides(condition, "policy"),
                "online": dict(zip(rp.SETTINGS, spec[2:], strict=True))}
     with_hand = {**without, "env": {**without["env"], "follow_plan": True}}
-    for meta, replayed in ((with_hand, False), (without, True)):
-        calls.clear()
-        monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
-        rp.prepare(tmp_path, {"late100_s2_repetitive_delay3_hand"})
-        assert len(calls) == int(replayed)
+    assert not _replayed(tmp_path, monkeypatch, calls, "late100_s2_repetitive_delay3_hand", with_hand)
+    assert _replayed(tmp_path, monkeypatch, calls, "late100_s2_repetitive_delay3_hand", without)
