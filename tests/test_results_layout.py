@@ -303,15 +303,15 @@ def _prepare_bare(root, monkeypatch, registry: dict) -> tuple[list, dict]:
     return calls, played
 
 
-def _replayed(root, monkeypatch, calls: list, prefix: str, meta: dict) -> bool:
-    """Whether results_prepare.prepare plays ``prefix`` again when its first rollout records
-    ``meta`` (``calls``: _prepare_bare's record of the scripts run, cleared first)."""
+def _plays(root, monkeypatch, calls: list, prefix: str, meta: dict) -> int:
+    """How many scripts results_prepare.prepare runs for ``prefix`` when its first rollout
+    records ``meta`` (``calls``: _prepare_bare's record of the scripts run, cleared first)."""
     import results_prepare as rp
 
     calls.clear()
     monkeypatch.setattr(rp, "_first_meta", lambda root, prefix, meta=meta: meta)
     rp.prepare(root, {prefix})
-    return len(calls) == 1
+    return len(calls)
 
 
 def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, monkeypatch):
@@ -339,8 +339,8 @@ def test_the_collision_aware_sets_are_played_with_their_own_clearance(tmp_path, 
             "env": {"ik": {"clearance": rp.CLEARANCE_LEAD}},
             "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE}}
     plain = {**done, "env": {"ik": {"clearance": 0.0}}}
-    assert not _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_clear", done)
-    assert _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_clear", plain)
+    assert _plays(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_clear", done) == 0
+    assert _plays(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_clear", plain) == 1
 
 
 def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_path, monkeypatch):
@@ -368,8 +368,8 @@ def test_the_faded_sets_are_played_with_their_fade_and_replayed_without_it(tmp_p
     at_once = {"duration": 5.0, "model_sha256": "sha", "env": {"ik": {"clearance": 0.0}},
                "online": {**dict(zip(rp.SETTINGS, spec[2:], strict=True)), "max_error": rp.GATE}}
     faded = {**at_once, "online": {**at_once["online"], "fade": rp.FADE}}
-    assert not _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_fade", faded)
-    assert _replayed(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_fade", at_once)
+    assert _plays(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_fade", faded) == 0
+    assert _plays(tmp_path, monkeypatch, calls, "late100_s1_repetitive_guarded_fade", at_once) == 1
 
 
 def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_path, monkeypatch):
@@ -398,8 +398,8 @@ def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_
                           "fade": rp.FADE}}
     with_plan = {**without, "env": {**without["env"], "follow_plan": True}}
     prefix = "late100_s1_repetitive_guarded_fade_plan"
-    assert not _replayed(tmp_path, monkeypatch, calls, prefix, with_plan)
-    assert _replayed(tmp_path, monkeypatch, calls, prefix, without)
+    assert _plays(tmp_path, monkeypatch, calls, prefix, with_plan) == 0
+    assert _plays(tmp_path, monkeypatch, calls, prefix, without) == 1
 
 
 def test_a_baselines_file_without_a_rival_added_later_is_completed(tmp_path):
@@ -438,5 +438,5 @@ def test_the_hand_under_latency_and_noise_is_played_in_its_condition(tmp_path, m
     without = {"model_sha256": "sha", "env": condition_overrides(condition, "policy"),
                "online": dict(zip(rp.SETTINGS, spec[2:], strict=True))}
     with_hand = {**without, "env": {**without["env"], "follow_plan": True}}
-    assert not _replayed(tmp_path, monkeypatch, calls, "late100_s2_repetitive_delay3_hand", with_hand)
-    assert _replayed(tmp_path, monkeypatch, calls, "late100_s2_repetitive_delay3_hand", without)
+    assert _plays(tmp_path, monkeypatch, calls, "late100_s2_repetitive_delay3_hand", with_hand) == 0
+    assert _plays(tmp_path, monkeypatch, calls, "late100_s2_repetitive_delay3_hand", without) == 1
