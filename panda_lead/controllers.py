@@ -163,6 +163,9 @@ PREVIEW_RIVALS = ("future_target", "feedforward", "feedforward_plan")
 FUTURE_TAU = 0.04
 FEEDFORWARD_TAU, FEEDFORWARD_GAIN, FEEDFORWARD_TAU_IK = 0.02, 0.8, 0.01
 FEEDFORWARD_CLIP = True  # the correction clipped to what the motors can push (2.13 cm, not 2.77)
+# ... as preview.make_feedforward's keywords (the plan-following rival's fallback, its meta)
+FEEDFORWARD_SETTINGS = dict(tau=FEEDFORWARD_TAU, gain=FEEDFORWARD_GAIN, tau_ik=FEEDFORWARD_TAU_IK,
+                            clip=FEEDFORWARD_CLIP)
 # the feedforward that follows its plan where the arm can (rivals_tuning_plan.md): from the
 # fallback (the feedforward above) to the plan by a smoothstep from 0.2 s over 0.4 s
 PLAN_HANDOVER = (0.2, 0.4)
@@ -189,5 +192,4 @@ def make_planned_feedforward(handover: tuple[float, float] = PLAN_HANDOVER):
     above elsewhere (action joint_target): see preview.make_planned_feedforward."""
     from .preview import make_planned_feedforward as make
 
-    return make(handover, dict(tau=FEEDFORWARD_TAU, gain=FEEDFORWARD_GAIN,
-                               tau_ik=FEEDFORWARD_TAU_IK, clip=FEEDFORWARD_CLIP))
+    return make(handover, FEEDFORWARD_SETTINGS)

@@ -139,10 +139,7 @@ def build(name: str, steps: int, model: Path | None = None, overrides: dict | No
             raise UserError("--tau does not apply to feedforward_plan (it follows the plan "
                             "half a control period ahead; its fallback is the feedforward's)")
         meta.update(knows_path=True, handover=list(controllers.PLAN_HANDOVER),
-                    fallback={"tau": controllers.FEEDFORWARD_TAU,
-                              "gain": controllers.FEEDFORWARD_GAIN,
-                              "tau_ik": controllers.FEEDFORWARD_TAU_IK,
-                              "clip": controllers.FEEDFORWARD_CLIP})
+                    fallback=dict(controllers.FEEDFORWARD_SETTINGS))
         return Controller(name, config.replace(action="joint_target"), meta,
                           controllers.make_planned_feedforward(), dropped=dropped)
     ilc = ilc or ILCConfig()

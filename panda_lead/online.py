@@ -76,10 +76,18 @@ class OnlineCorrection:
         in its slope (the low-pass's window fills step by step), and the 1 kHz command a real
         Panda receives turns that kink into a joint-acceleration spike past its limit
         (docs/questions.md 9, "A correction that fades in")."""
-        if not self.fade:
-            return (t >= self.start).astype(float)
-        x = np.clip((t - self.start) / self.fade, 0.0, 1.0)
-        return x * x * (3.0 - 2.0 * x)
+        return smooth_ramp(t, self.start, self.fade)
+
+
+def smooth_ramp(t, start: float, length: float) -> np.ndarray:
+    """0 before ``start``, then a smoothstep (3x^2 - 2x^3, flat at both ends) up to 1 over
+    ``length`` s; a step at ``start`` when ``length`` is 0. The correction's fade and the
+    planner's handover (preview.handover_weight) both ramp this way."""
+    t = np.asarray(t, dtype=float)
+    if not length:
+        return (t >= start).astype(float)
+    x = np.clip((t - start) / length, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 class Corrector:

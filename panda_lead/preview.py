@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 
 from .core import N_JOINTS
+from .online import smooth_ramp
 
 # How many converging IK iterations the desired joint path gets per control step (warm-started
 # from the previous step's solution; the first step from home gets FIRST_IK_ITERS).
@@ -230,10 +231,7 @@ def handover_weight(time: np.ndarray, handover: tuple[float, float],
     """(N,) the plan's weight in the joint goal at each slot's time: a smoothstep from
     handover[0] s over handover[1] s (a step at handover[0] when the ramp is 0), 0 where the
     plan is not followable."""
-    start, ramp = handover
-    x = (time - start) / ramp if ramp > 0 else (time >= start) * 1.0
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(followable, x * x * (3.0 - 2.0 * x), 0.0)
+    return np.where(followable, smooth_ramp(time, *handover), 0.0)
 
 
 def joint_target_action(core, goal: np.ndarray) -> np.ndarray:

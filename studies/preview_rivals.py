@@ -142,8 +142,7 @@ def _tune_plan(args: Args, joint) -> None:
     from panda_lead import controllers, preview
     from panda_lead.seeds import TUNE_SEEDS
 
-    fallback = dict(tau=controllers.FEEDFORWARD_TAU, gain=controllers.FEEDFORWARD_GAIN,
-                    tau_ik=controllers.FEEDFORWARD_TAU_IK, clip=controllers.FEEDFORWARD_CLIP)
+    fallback = controllers.FEEDFORWARD_SETTINGS
     m, s = mean_errors(joint, controllers.make_feedforward(), TUNE_SEEDS)
     print(f"| model-based feedforward (in use) | tau {fallback['tau']} s, gain {fallback['gain']}, "
           f"IK look-ahead {fallback['tau_ik']} | {m:.2f} | {s:.2f} |", flush=True)
