@@ -47,15 +47,16 @@ FIRST_IK_ITERS = 100
 class _PathCache:
     """Each slot's planned path at every control step from 0 to the episode's end plus
     ``horizon_s`` seconds, recomputed for the slots whose trajectory changed (a reset). With
-    ``joint_path``, also its servo goals and ``within`` (N, rows): whether each step of the plan
-    asks no more than the motors can push and keeps the goal inside the joint limits."""
+    ``joint_path``, also its servo goals, ``within`` (N, rows): whether each step of the plan
+    asks no more than the motors can push and keeps the goal inside the joint limits, and
+    ``followable`` (N,): whether every step of the episode (0 to its last) is within."""
 
     def __init__(self, horizon_s: float, joint_path: bool = False, clip: bool = False):
         self.horizon_s = float(horizon_s)
         self.clip = clip
         self.joint_path = joint_path
         self.trajs: list = []
-        self.pos = self.goal = self.within = None
+        self.pos = self.goal = self.within = self.followable = None
 
     def update(self, task) -> None:
         n, dt = task.n, task.dt
@@ -65,6 +66,7 @@ class _PathCache:
             self.pos = np.zeros((n, rows, 3))
             self.goal = np.zeros((n, rows, N_JOINTS, 2)) if self.joint_path else None
             self.within = np.ones((n, rows), dtype=bool) if self.joint_path else None
+            self.followable = np.ones(n, dtype=bool) if self.joint_path else None
         stale = [i for i in range(n) if self.trajs[i] is not task.trajs[i]]
         if not stale:
             return
@@ -77,6 +79,7 @@ class _PathCache:
             self.goal[stale] = servo_goals(task.core, self.pos, dt, self.clip, slots=stale,
                                            within=within)
             self.within[stale] = within
+            self.followable[stale] = within[:, :task.config.episode_steps + 1].all(axis=1)
 
     def at(self, array: np.ndarray, task, offset_steps: float) -> np.ndarray:
         """Each slot's row at its step + offset_steps (linear between rows), (N, ...)."""
@@ -219,8 +222,7 @@ def make_planned_feedforward(handover: tuple[float, float], fallback: dict,
         row = cache.at(cache.goal, task, 0.5 if ahead_s is None else ahead_s / task.dt)
         planned = row[..., 0] + row[..., 1]
         back = fallback_goal(task)
-        followable = cache.within[:, :task.config.episode_steps + 1].all(axis=1)
-        w = handover_weight(task.core.time, (start, ramp), followable)[:, None]
+        w = handover_weight(task.core.time, (start, ramp), cache.followable)[:, None]
         return joint_target_action(task.core, (1.0 - w) * back + w * planned)
 
     return act

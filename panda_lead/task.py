@@ -140,7 +140,10 @@ class LeadTask:
 
             self._plan = self._feedforward or preview._PathCache(0.0, joint_path=True, clip=True)
             self._handover = controllers.PLAN_HANDOVER
-            self._followable = np.zeros(n, dtype=bool)
+            self._handover_weight = preview.handover_weight
+            # which slots' goal the damper projects: the feedforward's goal always (as the
+            # core does), the IK's own only once handed over (the IK projected it already)
+            self._every_slot = np.ones(n, dtype=bool) if self._feedforward is not None else None
         # The lap-to-lap correction in the loop (EnvConfig.repetitive_gain): online.py's law,
         # the one a trained lead is played with
         self._corrector = None
@@ -242,8 +245,6 @@ class LeadTask:
             self._feedforward.update(self)
         if self._plan is not None:
             self._plan.update(self)  # (a no-op when it is the feedforward's own cache)
-            self._followable[ids] = self._plan.within[ids, :self.config.episode_steps + 1].all(
-                axis=1)
         self.prev_action[ids] = 0.0
         self._recent[ids] = 0.0
         self.lead[ids] = 0.0
@@ -567,20 +568,17 @@ class LeadTask:
         (preview.make_planned_feedforward's law); under ik.clearance, the damper projects what
         the core would have projected (the feedforward's goal, every handed-over goal) and
         leaves the IK's own goal as the IK left it."""
-        from .preview import handover_weight
-
         core = self.core
         if self._feedforward is not None:
             lead, offset = self._feedforward_step(self.lead)
             goal = core.ik(core.target()[0] + lead) + offset
         else:
             goal = core.ik(core.target()[0] + (self.lead if shift is None else self.lead + shift))
-        w = handover_weight(core.time, self._handover, self._followable)
+        w = self._handover_weight(core.time, self._handover, self._plan.followable)
         if w.any():
             row = self._plan.at(self._plan.goal, self, 0.5)
             goal = goal + w[:, None] * (row[..., 0] + row[..., 1] - goal)
-        projected = w > 0 if self._feedforward is None else np.ones(self.n, dtype=bool)
-        return None, None, goal, projected
+        return None, None, goal, w > 0 if self._every_slot is None else self._every_slot
 
     def _feedforward_step(self, lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The core's (lead, joint offset) under EnvConfig.feedforward: the IK aimed at the

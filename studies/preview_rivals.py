@@ -71,7 +71,7 @@ def followable(seeds: str, duration: float) -> None:
         task.reset(None, batch)
         cache = preview._PathCache(0.0, joint_path=True)
         cache.update(task)
-        flags += cache.within[:, :steps + 1].all(axis=1).tolist()
+        flags += cache.followable.tolist()
         shapes += [t.shape for t in task.trajs]
     length = f" --duration {duration:g}" if duration != Args.duration else ""
     print(f"`uv run studies/preview_rivals.py --followable {seeds}{length}`: seeds {seeds} "

@@ -247,6 +247,7 @@ def test_within_marks_the_steps_a_motor_or_a_joint_limit_refuses():
     np.testing.assert_array_equal(cache.within, want)
     steps = slice(0, 151)
     assert cache.within[0, steps].all() and not cache.within[1, steps].all()
+    np.testing.assert_array_equal(cache.followable, cache.within[:, steps].all(axis=1))
 
 
 def _goals(config, act, seeds, steps):
