@@ -494,12 +494,15 @@ def limits(args: Args) -> None:
     shapes: dict[int, str] = {}  # trajectory -> its shape
     per_set: dict[str, dict[int, list[bool]]] = {}  # label -> trajectory -> accepted, per set
     checked: dict[str, dict] = {}  # set -> trajectory -> its check (for --lost-against)
+    leads: dict[str, dict] = {}  # set -> trajectory -> (lead, t), kept for --lost-against only
     for label, prefixes in groups:
         per_seed: dict[int, list[bool]] = {}
         for prefix in prefixes:
             rollouts = load_set(prefix, ROLLOUT_DIR)
             shapes.update((seed, r.meta.get("shape", "?")) for seed, r in rollouts.items())
             checked[prefix] = accepted_by_arm(rollouts)
+            if args.lost_against:
+                leads[prefix] = {seed: (r.lead, r.t) for seed, r in rollouts.items()}
             for seed, c in checked[prefix].items():
                 per_seed.setdefault(seed, []).append(bool(c.accepted))
         per_set[label] = per_seed
@@ -541,16 +544,16 @@ def limits(args: Args) -> None:
                 cells.append(f"{sum(runs)} of {len(runs)}")
             print(f"| {label} | {' | '.join(cells)} |")
     if args.lost_against:
-        _lost_episodes(groups, args.lost_against, checked)
+        _lost_episodes(groups, args.lost_against, checked, leads, shapes)
 
 
-def _lost_episodes(groups: list[tuple[str, list[str]]], against: str, checked: dict) -> None:
+def _lost_episodes(groups: list[tuple[str, list[str]]], against: str, checked: dict,
+                   leads: dict, shapes: dict) -> None:
     """limits --lost-against: per group, the episodes ``against``'s sets accept and the group's
-    refuse, with where the refusal comes from (``checked``: each set's checks, made once)."""
+    refuse, with where the refusal comes from (``checked``: each set's checks, ``leads``: its
+    (lead, t) per trajectory, ``shapes``: each trajectory's shape; all read once, by limits)."""
     from collections import Counter
 
-    from panda_lead.metrics.pairing import load_set
-    from panda_lead.rollout import ROLLOUT_DIR
     from panda_lead.trajectory import sample
 
     reference = dict(groups)[against]
@@ -563,18 +566,18 @@ def _lost_episodes(groups: list[tuple[str, list[str]]], against: str, checked: d
         rows = []
         for i, prefix in enumerate(prefixes):
             ref_prefix = reference[i if len(reference) > 1 else 0]
-            mine, theirs = load_set(prefix, ROLLOUT_DIR), load_set(ref_prefix, ROLLOUT_DIR)
+            mine, theirs = leads[prefix], leads[ref_prefix]
             checks, ref_checks = checked[prefix], checked[ref_prefix]
             for seed in sorted(set(checks) & set(ref_checks)):
                 if not ref_checks[seed].accepted or checks[seed].accepted:
                     continue
-                c, r = checks[seed], mine[seed]
-                apart = np.flatnonzero(np.any(r.lead != theirs[seed].lead, axis=1))
-                part = r.t[apart[0]] if len(apart) and apart[0] > 0 else None
+                c, (lead, t) = checks[seed], mine[seed]
+                apart = np.flatnonzero(np.any(lead != theirs[seed][0], axis=1))
+                part = t[apart[0]] if len(apart) and apart[0] > 0 else None
                 traj = sample(seed)
-                seg = traj.params.get("segment_time") if traj.shape == r.meta.get("shape") else None
+                seg = traj.params.get("segment_time") if traj.shape == shapes[seed] else None
                 waypoint = (min(c.worst_time % seg, seg - c.worst_time % seg) if seg else None)
-                rows.append((prefix, seed, r.meta.get("shape", "?"), c, part, waypoint))
+                rows.append((prefix, seed, shapes[seed], c, part, waypoint))
         print(f"\nEpisodes {against!r} accepts and {label!r} refuses (set paired with set): "
               f"the worst limit, its peak / limit, when it peaks (s), when the two leads part (s; "
               f"- where they differ from the start), the peak's distance to the nearest spline "
