@@ -386,9 +386,9 @@ def test_preview_rivals_tunes_the_plan_following_feedforward_when_asked(monkeypa
     monkeypatch.setattr(preview, "make_planned_feedforward",
                         lambda handover, fallback, ahead=None: built.append(
                             (handover, fallback, ahead)) or (lambda obs, task: None))
-    scores = iter([(4.0, 3.0), (2.1, 1.0), (2.0, 0.9), (1.9, 0.95)])  # analytic, feedforward,
-    # then the two settings
-    monkeypatch.setattr(preview_rivals, "mean_errors", lambda *_: next(scores))
+    # analytic (mean, settled), then the feedforward and the two settings with their medians
+    scores = iter([(4.0, 3.0), (2.1, 1.0, 0.3), (2.0, 0.9, 0.13), (1.9, 0.95, 0.2)])
+    monkeypatch.setattr(preview_rivals, "mean_errors", lambda *a, **k: next(scores))
     preview_rivals.main(preview_rivals.Args(future=False,
                                             plan_settings=("0.2:0.4:half", "0:0:0.01")))
     out = capsys.readouterr().out
@@ -398,6 +398,7 @@ def test_preview_rivals_tunes_the_plan_following_feedforward_when_asked(monkeypa
     assert ("`uv run studies/preview_rivals.py --no-future --plan-settings 0.2:0.4:half 0:0:0.01` "
             "at commit") in out
     assert "best: 0:0:0.01 (1.90 cm)" in out
+    assert "| 2.00 | 0.90 | 0.13 |" in out  # the median settled error beside mean and settled
 
 
 def test_preview_rivals_counts_the_followable_episodes_per_shape(capsys):
