@@ -201,9 +201,10 @@ def make_planned_feedforward(handover: tuple[float, float], fallback: dict,
     arm from home onto the path with Cartesian feedback, and hands over to the plan by a
     smoothstep from ``handover[0]`` s over ``handover[1]`` s; a plan the arm cannot follow
     (a fast circle near the workspace's edge asks more than the motors can push) keeps the
-    fallback throughout. Why: on the tuning seeds the plan alone settles to 0.13 cm on the
-    median trajectory, against 0.30 for the fallback, but where it asks for the impossible it
-    has no way back to the path (results/studies/preview/rivals_tuning_plan.md). ``ahead_s``:
+    fallback throughout. Why: on the tuning seeds, followed from the start wherever the arm
+    can, the plan settles to 0.13 cm on the median trajectory against 0.30 for the fallback
+    (results/studies/preview/rivals_tuning_plan.md); where it asks for the impossible it has
+    no way back to the path. ``ahead_s``:
     how far ahead the plan is read (default half a control period; tuning only)."""
     start, ramp = (float(x) for x in handover)
     if start < 0 or ramp < 0:
