@@ -3,6 +3,11 @@ seeds): the future-target lead's tau, and the model-based feedforward's tau, gai
 look-ahead (panda_lead/preview.py).
 
     uv run studies/preview_rivals.py > results/studies/preview/rivals_tuning.md
+    uv run studies/preview_rivals.py --no-future --plan-settings 0:0:half 0.2:0.4:half
+    uv run studies/preview_rivals.py --followable 0-999   # which episodes the arm can follow
+
+(--plan-settings: the feedforward that follows its plan, feedforward_plan, its grid and what
+rivals_tuning_plan.md records; --followable: results/studies/preview/followable.md.)
 
 Every setting plays all 50 tuning seeds (5 s episodes) as one batch; the lowest mean error
 wins and is what controllers.FUTURE_TAU / FEEDFORWARD_* hold. The analytic lead at its tuned
