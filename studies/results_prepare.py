@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 from results_steps import (
     BY_SELECTION,
@@ -231,11 +232,31 @@ GATED_ORACLES = {"ilc_hardware_repetitive_guarded": "hardware_repetitive_guarded
 ONLINE_ORACLES = {"ilc_headline_repetitive": "headline_repetitive",
                   "ilc_hardware_repetitive": "hardware_repetitive"}
 SETTINGS = ("kind", "gain", "advance", "smooth")
+
+
+class Variant(NamedTuple):
+    """One registered rollout set of the variant registries (LONG_EPISODES, CLEARANCE, FADED,
+    PLANNED), played by _variant_sets: its base controller, archived model (or None), the
+    online correction's spec (or None) and gate, the IK's clearance, the correction's fade,
+    and whether the planner's hand is on."""
+    base: str
+    model: str | None
+    spec: tuple | None
+    gate: float | None
+    clearance: float = 0.0
+    fade: float | None = None
+    plan: bool = False
+
+
+def _variants(registry: dict) -> dict[str, Variant]:
+    return {prefix: Variant(*fields) for prefix, fields in registry.items()}
+
+
 # what the laps would buy: 10 s episodes (online_correction.py play --duration), test seeds
 # 0-199, the archived hardware model and its study's five seeds alone and with the gated
 # correction, and the feedforward rival alone and with its own: prefix -> (base, archived model
 # or None, the online spec or None, its gate)
-LONG_EPISODES = {
+LONG_EPISODES = _variants({
     "hardware_10s": ("policy", HARDWARE, None, None),
     "hardware_repetitive_guarded_10s": ("policy", HARDWARE, ONLINE["hardware_repetitive"], GATE),
     **{f"late100_s{k}_10s": ("policy", f"seeds/{LATE100}_s{k}", None, None)
@@ -244,14 +265,14 @@ LONG_EPISODES = {
                                                 ONLINE[f"late100_s{k}_repetitive"], GATE)
        for k in range(1, 6)},
     "feedforward_10s": ("feedforward", None, None, None),
-    "feedforward_repetitive_10s": ("feedforward", None, ONLINE["feedforward_repetitive"], None)}
+    "feedforward_repetitive_10s": ("feedforward", None, ONLINE["feedforward_repetitive"], None)})
 LONG_S, LONG_SEEDS = 10.0, "0-199"
 # the collision-aware IK under the lead and the rival alike (online_correction.py --clearance;
 # each its own clearance, chosen on the selection seeds: tuning_clearance.md), test seeds 0-999:
 # the hardware study's five seeds alone and with the gated correction, the feedforward rival
 # alone and with its own (same registry form as LONG_EPISODES, the clearance last)
 CLEARANCE_LEAD, CLEARANCE_RIVAL = 0.03, 0.01
-CLEARANCE = {
+CLEARANCE = _variants({
     **{f"late100_s{k}_clear": ("policy", f"seeds/{LATE100}_s{k}", None, None, CLEARANCE_LEAD)
        for k in range(1, 6)},
     **{f"late100_s{k}_repetitive_guarded_clear": ("policy", f"seeds/{LATE100}_s{k}",
@@ -259,14 +280,14 @@ CLEARANCE = {
                                                   CLEARANCE_LEAD) for k in range(1, 6)},
     "feedforward_clear": ("feedforward", None, None, None, CLEARANCE_RIVAL),
     "feedforward_repetitive_clear": ("feedforward", None, ONLINE["feedforward_repetitive"], None,
-                                     CLEARANCE_RIVAL)}
+                                     CLEARANCE_RIVAL)})
 
 # the corrections faded in (online_correction.py --fade; online.OnlineCorrection.weight): switched
 # on at once their first lap's kink breaks the Panda's joint-2 acceleration limit; the fade,
 # chosen on the selection seeds (tuning_fade.md), is the same for the lead's and the rival's.
 # Test seeds 0-999, same registry form as CLEARANCE with the fade last
 FADE = 0.1
-FADED = {
+FADED = _variants({
     **{f"late100_s{k}_repetitive_guarded_fade": ("policy", f"seeds/{LATE100}_s{k}",
                                                  ONLINE[f"late100_s{k}_repetitive"], GATE, 0.0,
                                                  FADE) for k in range(1, 6)},
@@ -276,7 +297,7 @@ FADED = {
     "feedforward_repetitive_fade": ("feedforward", None, ONLINE["feedforward_repetitive"], None,
                                     0.0, FADE),
     "feedforward_repetitive_clear_fade": ("feedforward", None, ONLINE["feedforward_repetitive"],
-                                          None, CLEARANCE_RIVAL, FADE)}
+                                          None, CLEARANCE_RIVAL, FADE)})
 # ... and through 3 steps of latency, where the rule chose no fade (every fade cost more than
 # its 0.02 cm on the selection seeds) but 0.2 s kept every trajectory the lead alone is accepted
 # on there: shown as that trade, labelled not the rule's choice (prefix -> (spec, condition,
@@ -292,19 +313,12 @@ FADED_CONDITION = {f"late100_s{k}_repetitive_delay3_fade": (
 # feedforward_plan rival's law), the others keep their controller: the hardware study alone and
 # with its faded gated correction, and the feedforward rival with its faded correction (the
 # plan-following rival with the rival's own correction where the plan cannot be followed).
-# Test seeds 0-999, same registry form as FADED with follow_plan last
+# Test seeds 0-999: each the FADED set of the same name with the hand (and on the collision-aware
+# IK, the plan its collision-aware path, every handed-over goal through the damper)
 PLANNED = {
-    **{f"late100_s{k}_plan": ("policy", f"seeds/{LATE100}_s{k}", None, None, 0.0, None, True)
+    **{f"late100_s{k}_plan": Variant("policy", f"seeds/{LATE100}_s{k}", None, None, plan=True)
        for k in range(1, 6)},
-    **{f"late100_s{k}_repetitive_guarded_fade_plan": (*FADED[f"late100_s{k}_repetitive_guarded_fade"],
-                                                      True) for k in range(1, 6)},
-    "feedforward_repetitive_fade_plan": (*FADED["feedforward_repetitive_fade"], True),
-    # ... and on the collision-aware IK (the plan its collision-aware path, every handed-over
-    # goal through the damper), each controller its own clearance
-    **{f"late100_s{k}_repetitive_guarded_clear_fade_plan": (
-        *FADED[f"late100_s{k}_repetitive_guarded_clear_fade"], True) for k in range(1, 6)},
-    "feedforward_repetitive_clear_fade_plan": (*FADED["feedforward_repetitive_clear_fade"],
-                                               True)}
+    **{f"{faded}_plan": variant._replace(plan=True) for faded, variant in FADED.items()}}
 
 
 # ... and the hand through 3 steps of latency and under 1 cm of noise (online_correction.py
@@ -433,16 +447,12 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
 
 
 def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: float = 5.0) -> None:
-    """A registry's sets (LONG_EPISODES, CLEARANCE, FADED, PLANNED: prefix -> (base, archived
-    model or None, the online spec or None, its gate[, the IK's clearance[, its fade[,
-    follow_plan]]])) (re)played when missing, or played at another length or clearance, by
-    another model or with another setting."""
-    for prefix, (base, model, spec, gate, *rest) in registry.items():
+    """A registry's sets (LONG_EPISODES, CLEARANCE, FADED, PLANNED: prefix -> Variant)
+    (re)played when missing, or played at another length or clearance, by another model or
+    with another setting."""
+    for prefix, (base, model, spec, gate, clearance, fade, plan) in registry.items():
         if not wanted(prefix):
             continue
-        clearance = rest[0] if rest else 0.0
-        fade = rest[1] if len(rest) > 1 else None
-        plan = rest[2] if len(rest) > 2 else False
         meta = _first_meta(root, prefix)
         env = meta.get("env") or {}
         stale = (meta.get("duration") != duration
