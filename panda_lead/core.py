@@ -374,9 +374,13 @@ class ArmBatch:
             raise RuntimeError("ArmBatch.step before any target path: call "
                                "reset(trajs=[...], n_steps=N) first")
         if joint_goal is not None:
-            projected = self._off_itself(joint_goal)
-            if off_itself is not None and self._clearance is not None:
-                projected = np.where(off_itself[:, None], projected, joint_goal)
+            if off_itself is None or self._clearance is None:
+                projected = self._off_itself(joint_goal)
+            elif off_itself.any():  # (the damper's projection is not cheap: only when asked)
+                projected = np.where(off_itself[:, None], self._off_itself(joint_goal),
+                                     joint_goal)
+            else:
+                projected = joint_goal
             self.q_goal = np.clip(projected, self._lo, self._hi)
         elif self.ik_config.substep_ik:
             sensors = self._substep_ik_step(lead, joint_offset)
