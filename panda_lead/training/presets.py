@@ -539,6 +539,16 @@ PRESETS.update([
             "deploy_large_batch_curv10_actions_stack4_finetuned with curvature weight 100 in the "
             "episodes with latency (obs_stack 4; 4 x 43-D)", **_stack4_gently(),
             caps_curvature_delayed=100.0),
+    # ... the same fine-tune with the planner's hand in the loop (follow_plan): the plan holds
+    # every episode the arm can follow (about 75% of training episodes), so the lead is
+    # rewarded only where it runs at test time with the hand, the fast circles and
+    # figure-eights near the motors' limits; on the rest its action changes nothing (the
+    # reward has no term on the lead itself). Knows the planned path. Control: the late100
+    # fine-tune (same start, schedule, budget, world), played with the hand.
+    _preset("deploy_large_batch_curv10_actions_stack4_finetuned_late100_plan",
+            "deploy_large_batch_curv10_actions_stack4_finetuned_late100 trained with the "
+            "planner's hand (follow_plan; obs_stack 4; 4 x 43-D): knows the planned path",
+            **_stack4_gently(follow_plan=True), caps_curvature_delayed=100.0),
     # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
     # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
     # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
