@@ -27,13 +27,14 @@ OBS_FEATURES = {
     "installation": 4,  # what the installation's engineer knows: latencies and noise (OBS_SCALE)
     "recent_actions": 18,  # RECENT_ACTIONS of the policy's own last actions, never delayed
     "repetitive_correction": 3,  # the in-loop lap-to-lap correction's present value (m)
+    "plan_weight": 1,  # the planner's hand's share of the joint goal (EnvConfig.follow_plan)
 }
 # recent_actions: the policy's last actions, newest first. Under k steps of latency each way a
 # lead's observation is k steps old and its action lands k steps late, so the last 2k actions
 # are what the delayed system needs to be Markov again (issue 36); 2 x 3 steps at most here.
 RECENT_ACTIONS = 6
 # Features the controller knows rather than measures: never noisy
-KNOWN_FEATURES = ("installation", "recent_actions", "repetitive_correction")
+KNOWN_FEATURES = ("installation", "recent_actions", "repetitive_correction", "plan_weight")
 # The features that show the planned path ahead: a model observing one "knows the planned path"
 # (issue 37), a labelled variant never ranked with the causal ones.
 PATH_FEATURES = ("target_preview", "preview_jerk")
@@ -97,6 +98,12 @@ OBS_SCALE = {
     # computed by the controller from the errors of the last lap (known, not measured): what
     # the policy's lead is added to (0 without one). Centimetres, so tip_error's scale.
     "repetitive_correction": 0.05,
+    # The planner's hand's weight in this step's joint goal (EnvConfig.follow_plan): 0 where
+    # the lead's goal is commanded, 1 where the plan holds the arm and the lead's action changes
+    # nothing. The controller's own choice, known when it is made: never noisy, never late. A
+    # policy that observes it learns only from the steps its action reaches the arm
+    # (training.fast_ppo: the policy loss leaves out the steps at weight 1).
+    "plan_weight": 1.0,
 }
 PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
 # The observation layouts of the reference ladder (the presets build on them).
@@ -406,6 +413,9 @@ class EnvConfig:
                                  or self.limit_lead_only):
             raise UserError("follow_plan hands a Cartesian lead's joint goal over to the plan: "
                             "it needs action 'lead', and no ik.substep_ik or limit_lead_only")
+        if "plan_weight" in self.obs_features and not self.follow_plan:
+            raise UserError("obs_features: plan_weight is the planner's hand's share of the goal: "
+                            "it needs follow_plan")
         if self.repetitive_gain and (
                 self.action != "lead" or any(self.obs_noise.values()) or self.obs_delay
                 or self.action_delay or self.target_delay or self.random_delay

@@ -70,6 +70,12 @@ class LeadTask:
         self._recent = np.zeros((n, RECENT_ACTIONS, self.action_dim))
         self._recent_cols = next((slice(a, b) for f, a, b in self.layout
                                   if f == "recent_actions"), None)
+        # plan_weight: the planner's hand's share of the next goal (set up with the hand below)
+        self._plan_weight_cols = next((slice(a, b) for f, a, b in self.layout
+                                       if f == "plan_weight"), None)
+        # what the controller knows when it acts, never late: its own actions and its hand
+        self._undelayed_cols = [c for c in (self._recent_cols, self._plan_weight_cols)
+                                if c is not None]
         self.lead = np.zeros((n, 3))
         self.ee_vel = np.zeros((n, 3))
         self._prev_ee = np.zeros((n, 3))
@@ -373,6 +379,9 @@ class LeadTask:
             source["recent_actions"] = self._recent.reshape(self.n, -1)
         if self._error_observed:
             source["tip_error"] = core.tip_pos - pos
+        if self._plan_weight_cols is not None:  # (the weight _plan_goal gives the next goal)
+            source["plan_weight"] = self._handover_weight(
+                core.time, self._handover, self._plan.followable)[:, None]
         if self._avg_observed:
             source["tip_error_avg"] = self.err_avg
         if self._installation_cols is not None:
@@ -605,8 +614,8 @@ class LeadTask:
             self._obs_hist[:, 1:] = self._obs_hist[:, :-1]
             self._obs_hist[:, 0] = obs
             obs = self._obs_hist[self._all, self.obs_delay]  # (a copy: fancy indexing)
-            if self._recent_cols is not None:  # the policy's own actions are not late
-                obs[:, self._recent_cols] = self._obs_hist[:, 0, self._recent_cols]
+            for cols in self._undelayed_cols:  # its own actions and its hand are not late
+                obs[:, cols] = self._obs_hist[:, 0, cols]
         if unstable is not None:
             obs[unstable] = 0.0  # never hand NaNs to the learner
         return self._stacked(obs)

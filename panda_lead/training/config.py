@@ -206,6 +206,10 @@ class TrainConfig:
                 or self.caps_curvature_delayed) and not self.fast_update:
             raise UserError("--caps-temporal, --caps-spatial and --caps-curvature need the fast "
                             "update (FastPPO): drop --no-fast-update")
+        if "plan_weight" in self.env.obs_features and not self.fast_update:
+            raise UserError("the plan_weight feature's policy loss (the steps the planner's hand "
+                            "holds left out) needs the fast update (FastPPO): drop "
+                            "--no-fast-update")
         if self.lr_schedule not in ("constant", "linear"):
             raise UserError(f"--lr-schedule must be constant or linear, got {self.lr_schedule!r}")
         if not self.net_arch or any(isinstance(n, bool) or not isinstance(n, int) or n < 1

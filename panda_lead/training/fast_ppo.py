@@ -129,8 +129,13 @@ class FastPPO(PPO):
     def __init__(self, *args, update_threads: int | None = None, caps_temporal: float = 0.0,
                  caps_spatial: float = 0.0, caps_sigma: float = 0.05,
                  caps_curvature: float = 0.0, caps_curvature_delayed: float | None = None,
-                 delay_columns: tuple[int, ...] = (), **kwargs):
+                 delay_columns: tuple[int, ...] = (), plan_column: int | None = None,
+                 **kwargs):
         self.update_threads = update_threads
+        # the observation's plan_weight column (config.OBS_SCALE): the policy loss leaves out
+        # the steps where the planner's hand holds the arm (weight 1: the action changes
+        # nothing there, so its advantage says nothing about it); None: every step counts
+        self.plan_column = plan_column
         self.caps_temporal, self.caps_spatial, self.caps_sigma = (caps_temporal, caps_spatial,
                                                                   caps_sigma)
         self.caps_curvature = caps_curvature
@@ -269,9 +274,9 @@ class FastPPO(PPO):
 
     def _train(self) -> None:
         if not self._fast_path_applies():
-            if self._caps:  # SB3's train() has no CAPS terms: never drop them silently
-                raise ValueError("the CAPS terms need FastPPO's update (a diagonal Gaussian "
-                                 "policy on Box spaces, no gSDE)")
+            if self._caps or self.plan_column is not None:  # SB3's train() has neither
+                raise ValueError("the CAPS terms and the planner's hand's mask need FastPPO's "
+                                 "update (a diagonal Gaussian policy on Box spaces, no gSDE)")
             return super().train()
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
@@ -314,12 +319,17 @@ class FastPPO(PPO):
                                                                        mb["actions"])
                 values = values.flatten()
                 advantages = mb["advantages"]
-                if self.normalize_advantage and len(advantages) > 1:
-                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
                 ratio = th.exp(log_prob - mb["log_probs"])
-                policy_loss_1 = advantages * ratio
-                policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
-                policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+                if self.plan_column is None:
+                    if self.normalize_advantage and len(advantages) > 1:
+                        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+                    policy_loss_1 = advantages * ratio
+                    policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+                    policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+                else:
+                    policy_loss = self._led_policy_loss(
+                        advantages, ratio, clip_range,
+                        mb["observations"][:, self.plan_column] < 1.0)
                 value_loss = F.mse_loss(mb["returns"], values)
                 entropy_loss = -th.mean(entropy)
                 loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
@@ -359,6 +369,19 @@ class FastPPO(PPO):
             if self._curvature:
                 self.logger.record("train/caps_curvature", float(th.stack(caps_c).mean()))
 
+    def _led_policy_loss(self, advantages: th.Tensor, ratio: th.Tensor, clip_range: float,
+                         led: th.Tensor) -> th.Tensor:
+        """PPO's clipped policy loss over the steps the lead's action reaches the arm (``led``),
+        their advantages normalised among themselves; 0 (no gradient) when there are none."""
+        if not bool(led.any()):
+            return ratio.sum() * 0.0
+        advantages, ratio = advantages[led], ratio[led]
+        if self.normalize_advantage and len(advantages) > 1:
+            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        policy_loss_1 = advantages * ratio
+        policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+        return -th.min(policy_loss_1, policy_loss_2).mean()
+
     def _record(self, pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
                 loss, clip_range) -> None:
         """SB3's train/ logs, the same values: each list read as Python floats in one call
@@ -383,9 +406,12 @@ class FastPPO(PPO):
 
 
 def linear_schedule(start: float):
-    """SB3 learning-rate schedule: start at progress 1 (the first step), 0 at the end."""
+    """SB3 learning-rate schedule: start at progress 1 (the first step), 0 at the end and after
+    it. SB3 finishes the rollout that crosses --timesteps and updates on it with progress
+    1 - steps / timesteps < 0: unclamped, that update's rate is negative (gradient ascent; a
+    70,000-step run's third update, at 98,304 steps, took the value loss from 0.09 to 27)."""
     def schedule(progress_remaining: float) -> float:
-        return start * progress_remaining
+        return start * max(progress_remaining, 0.0)
     return schedule
 
 
@@ -399,6 +425,17 @@ def _delay_columns(config) -> tuple[int, ...]:
         if name == "installation":
             return (start, start + 1, start + 2)
     return ()
+
+
+def _plan_column(config) -> int | None:
+    """The observation's plan_weight column (the newest stacked observation's), or None."""
+    from ..config import obs_layout
+
+    env = getattr(config, "env", None)
+    for name, start, _ in obs_layout(env.obs_features) if env is not None else ():
+        if name == "plan_weight":
+            return start
+    return None
 
 
 def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None = None) -> PPO:
@@ -422,7 +459,7 @@ def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None 
                    caps_sigma=getattr(config, "caps_sigma", 0.05),
                    caps_curvature=getattr(config, "caps_curvature", 0.0),
                    caps_curvature_delayed=getattr(config, "caps_curvature_delayed", None),
-                   delay_columns=_delay_columns(config))
+                   delay_columns=_delay_columns(config), plan_column=_plan_column(config))
         policy_kwargs["optimizer_kwargs"] = dict(eps=1e-5, foreach=True)  # SB3's eps for PPO
     if fast:
         return FastPPO(FastActorCriticPolicy, vec, seed=config.seed, device=config.device,

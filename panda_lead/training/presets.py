@@ -540,15 +540,22 @@ PRESETS.update([
             "episodes with latency (obs_stack 4; 4 x 43-D)", **_stack4_gently(),
             caps_curvature_delayed=100.0),
     # ... the same fine-tune with the planner's hand in the loop (follow_plan): the plan holds
-    # every episode the arm can follow (about 75% of training episodes), so the lead is
-    # rewarded only where it runs at test time with the hand, the fast circles and
-    # figure-eights near the motors' limits; on the rest its action changes nothing (the
-    # reward has no term on the lead itself). Knows the planned path. Control: the late100
-    # fine-tune (same start, schedule, budget, world), played with the hand.
+    # every episode the arm can follow (about 75% of training episodes) from 0.2-0.6 s on, so
+    # the lead acts where it runs at test time with the hand, the fast circles and
+    # figure-eights near the motors' limits, and in every episode's first 0.2-0.6 s. A pilot
+    # without the plan_weight feature (2 seeds, 2.7M steps, 2026-11-29) drifted: its
+    # evaluation error rose from 1.97-2.03 to 2.16-2.33 cm, best at the first evaluation; on
+    # the held-over steps the action changes nothing and its advantage is noise. With
+    # plan_weight observed (4 x 44-D) the policy loss leaves those steps out
+    # (training.fast_ppo) and the value function can tell them apart. Knows the planned path.
+    # Control: the late100 fine-tune (same start, schedule, budget, world), played with the hand.
     _preset("deploy_large_batch_curv10_actions_stack4_finetuned_late100_plan",
             "deploy_large_batch_curv10_actions_stack4_finetuned_late100 trained with the "
-            "planner's hand (follow_plan; obs_stack 4; 4 x 43-D): knows the planned path",
-            **_stack4_gently(follow_plan=True), caps_curvature_delayed=100.0),
+            "planner's hand (follow_plan, plan_weight observed; obs_stack 4; 4 x 44-D): knows "
+            "the planned path",
+            **_stack4_gently(follow_plan=True,
+                             obs_features=(*DEPLOY_ACTIONS_ENV["obs_features"], "plan_weight")),
+            caps_curvature_delayed=100.0),
     # ... with the last 8 observations stacked: the 4-stack moved the acceptance at 10 ms
     # (+2.1 points, shown) and not at 30 ms (+0.0), where the loop holds 6 steps of latency
     # (3 each way) and 4 observations reach back only 3 steps past the newest late one. Same
