@@ -99,10 +99,10 @@ OBS_SCALE = {
     # the policy's lead is added to (0 without one). Centimetres, so tip_error's scale.
     "repetitive_correction": 0.05,
     # The planner's hand's weight in this step's joint goal (EnvConfig.follow_plan): 0 where
-    # the lead's goal is commanded, 1 where the plan holds the arm and the lead's action changes
-    # nothing. The controller's own choice, known when it is made: never noisy, never late. A
-    # policy that observes it learns only from the steps its action reaches the arm
-    # (training.fast_ppo: the policy loss leaves out the steps at weight 1).
+    # the lead's goal is commanded (always, without the hand), 1 where the plan holds the arm
+    # and the lead's action changes nothing. The controller's own choice, known when it is
+    # made: never noisy, never late. A policy that observes it learns only from the steps its
+    # action reaches the arm (training.fast_ppo: the policy loss leaves out those at 1).
     "plan_weight": 1.0,
 }
 PREVIEW_POINTS = 6  # target_preview's future points (its size is fixed: 3 per point)
@@ -413,9 +413,6 @@ class EnvConfig:
                                  or self.limit_lead_only):
             raise UserError("follow_plan hands a Cartesian lead's joint goal over to the plan: "
                             "it needs action 'lead', and no ik.substep_ik or limit_lead_only")
-        if "plan_weight" in self.obs_features and not self.follow_plan:
-            raise UserError("obs_features: plan_weight is the planner's hand's share of the goal: "
-                            "it needs follow_plan")
         if self.repetitive_gain and (
                 self.action != "lead" or any(self.obs_noise.values()) or self.obs_delay
                 or self.action_delay or self.target_delay or self.random_delay

@@ -83,6 +83,7 @@ class PandaLeadEnv(EpisodeStepsSpec, NotCopyable, gym.Env):
     | installation   | 4    | the episode's 3 delays (steps), target noise (cm)    | 3          |
     | recent_actions | 18   | the last 6 actions sent, newest first (not delayed)  | 1          |
     | repetitive_correction | 3 | the in-loop lap-to-lap correction added now (m) | 0.05 |
+    | plan_weight | 1 | the planner's hand's weight in the next goal (follow_plan; 0 without) | 1 |
 
     Default: the 15-D ``ee_pos, ee_vel, target_pos, target_vel, target_acc``; ``obs_layout()``
     gives the index ranges. ``tip_error_avg`` moves each step ``dt/error_avg_time`` of the way

@@ -379,9 +379,9 @@ class LeadTask:
             source["recent_actions"] = self._recent.reshape(self.n, -1)
         if self._error_observed:
             source["tip_error"] = core.tip_pos - pos
-        if self._plan_weight_cols is not None:  # (the weight _plan_goal gives the next goal)
-            source["plan_weight"] = self._handover_weight(
-                core.time, self._handover, self._plan.followable)[:, None]
+        if self._plan_weight_cols is not None:  # (the weight _plan_goal gives the next goal;
+            source["plan_weight"] = 0.0 if self._plan is None else self._handover_weight(
+                core.time, self._handover, self._plan.followable)[:, None]  # none: no hand)
         if self._avg_observed:
             source["tip_error_avg"] = self.err_avg
         if self._installation_cols is not None:

@@ -450,3 +450,66 @@ def test_the_activation_benchmark_times_each_op(capsys):
     times = {r.split("|")[1].strip(): float(r.split("|")[2]) for r in rows[1:]}
     assert {"torch.tanh", "torch.sigmoid", "numpy tanh"} <= set(times)
     assert all(t > 0 for t in times.values())
+
+
+def test_the_policy_loss_leaves_out_the_steps_the_planners_hand_holds():
+    """With plan_weight observed, steps at weight 1 (the hand holds the arm, the action changes
+    nothing) add nothing to the policy loss: an update on a rollout held throughout leaves the
+    actor as it was (fresh Adam moments, no CAPS, no entropy bonus) and still fits the value
+    net; on a rollout the lead holds throughout it is the plain update bit for bit."""
+    from panda_lead.config import EnvConfig, obs_layout
+
+    torch.set_num_threads(1)
+    features = ("ee_pos", "tip_error", "plan_weight")
+    env = EnvConfig(episode_steps=30, follow_plan=True, obs_features=features)
+    vec = make_vec_env(env, 3, 0, "batched", 1)
+    try:
+        model = build_ppo(TrainConfig(env=env, n_envs=3, n_steps=64, batch_size=64,
+                                      n_epochs=2, seed=3), vec)
+        col = obs_layout(features)[-1][1]
+        assert type(model) is FastPPO and model.plan_column == col
+        model.learn(64 * 3)
+        from stable_baselines3.common.callbacks import CallbackList
+
+        cb = CallbackList([])
+        cb.init_callback(model)
+        model.collect_rollouts(model.env, cb, model.rollout_buffer, n_rollout_steps=64)
+        optim = copy.deepcopy(model.policy.optimizer.state_dict())
+        optim["state"] = {}  # fresh moments: a zero gradient moves nothing
+
+        def state(weight):
+            buf = copy.deepcopy(model.rollout_buffer)
+            buf.observations[..., col] = weight
+            return (copy.deepcopy(model.policy.state_dict()), optim, buf,
+                    np.random.get_state(), model._n_updates)
+
+        before = {k: v.clone() for k, v in model.policy.state_dict().items()}
+        held, _, _, _ = _update(model, FastPPO.train, state(1.0), True)
+        actor = [k for k in before if k.startswith(("mlp_extractor.policy_net", "action_net",
+                                                    "log_std"))]
+        critic = [k for k in before if k.startswith(("mlp_extractor.value_net", "value_net"))]
+        assert actor and critic
+        assert all(torch.equal(held[k], before[k]) for k in actor)
+        assert all(not torch.equal(held[k], before[k]) for k in critic)
+        led_state = state(0.0)
+        masked, _, _, _ = _update(model, FastPPO.train, led_state, True)
+        model.plan_column = None
+        plain, _, _, _ = _update(model, FastPPO.train, led_state, True)
+        assert all(not torch.equal(masked[k], before[k]) for k in actor)
+        assert all(torch.equal(masked[k], plain[k]) for k in before)
+    finally:
+        vec.close()
+
+
+def test_the_plan_weight_needs_the_fast_update_and_the_linear_rate_stops_at_zero():
+    from panda_lead.config import EnvConfig
+    from panda_lead.errors import UserError
+    from panda_lead.training.fast_ppo import linear_schedule
+
+    env = EnvConfig(follow_plan=True, obs_features=("ee_pos", "plan_weight"))
+    with pytest.raises(UserError, match="plan_weight .* needs the fast update"):
+        TrainConfig(env=env, fast_update=False)
+    rate = linear_schedule(1e-3)
+    assert rate(1.0) == 1e-3 and rate(0.25) == 2.5e-4
+    # the rollout that crosses --timesteps is updated on at progress < 0: no negative rate
+    assert rate(0.0) == 0.0 and rate(-0.4) == 0.0

@@ -413,3 +413,34 @@ def test_preview_rivals_counts_the_followable_episodes_per_shape(capsys):
     assert "| all | 2 | 1 | 50.0% |" in out
     assert "| circle | 1 | 0 | 0.0% |" in out
 
+
+
+def test_plan_weight_is_the_hands_share_known_and_never_late():
+    """The plan_weight feature is the weight the hand gives the next goal (0 where the plan is
+    not followable, the smoothstep where it is), read without the observation's delay and never
+    noisy; 0 throughout without the hand."""
+    from panda_lead.config import obs_layout
+    from panda_lead.task import LeadTask
+
+    features = ("ee_pos", "tip_error", "plan_weight")
+    config = EnvConfig(episode_steps=150, follow_plan=True, obs_features=features, obs_delay=3,
+                       obs_noise={"ee_pos": 0.01, "tip_error": 0.01})
+    col = obs_layout(features)[-1][1]
+    task = LeadTask(config, 2)
+    obs = task.reset(traj_seeds=[FOLLOWABLE, BEYOND])
+    assert task._plan.followable.tolist() == [True, False]
+    seen = [obs[:, col]]
+    for _ in range(80):
+        obs = task.step(np.zeros((2, 3)))[0]
+        seen.append(obs[:, col])
+    seen = np.array(seen)
+    times = np.arange(81) * task.dt
+    want = preview.handover_weight(times, controllers.PLAN_HANDOVER, np.ones(81, bool))
+    np.testing.assert_allclose(seen[:, 0], want, atol=1e-6)  # this step's, not 3 steps old
+    assert seen[-1, 0] == 1.0 and seen[20, 0] == 0.0 and 0 < seen[40, 0] < 1
+    assert np.all(seen[:, 1] == 0.0)
+    task = LeadTask(config.replace(follow_plan=False), 2)
+    task.reset(traj_seeds=[FOLLOWABLE, BEYOND])
+    for _ in range(70):
+        obs = task.step(np.zeros((2, 3)))[0]
+    assert np.all(obs[:, col] == 0.0)

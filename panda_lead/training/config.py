@@ -46,7 +46,7 @@ class TrainConfig:
     """Adam learning rate (reference: 3e-4)."""
     lr_schedule: Literal["constant", "linear"] = "constant"
     """constant: the learning rate throughout; linear: from --learning-rate down to 0 at
-    --timesteps (SB3's progress_remaining)."""
+    --timesteps (SB3's progress_remaining), and 0 for the rollout that crosses it."""
     clip_range: float = 0.2
     """PPO clipping parameter."""
     ent_coef: float = 0.0
