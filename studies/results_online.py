@@ -5,7 +5,7 @@ results_steps.py to keep each file readable in one sitting; table_steps calls on
 
 from __future__ import annotations
 
-from results_steps import HEADLINE, Step, _compare, _oracle_table, _pair, _report, _summary
+from results_steps import HEADLINE, LATE100_HAND, Step, _compare, _oracle_table, _pair, _report, _summary
 
 
 def _groups_step(out: str, command: str, groups: dict[str, list[str]], *extra: str) -> Step:
@@ -326,6 +326,32 @@ def online_steps() -> list[Step]:
               _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
                            "hardware study, gated correction faded in"),
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
+    # ... and the same fine-tune trained with the hand in the loop (results_prepare.LATE100_HAND),
+    # each seed against the seed of the same start trained without it, both played with the hand
+    hand = [f"late100hand_s{k}" for k in range(1, 6)]
+    trained = f"results/studies/{LATE100_HAND}"
+    steps += [_summary(f"{trained}/vs_late100_plan.md",
+                       [(f"{p}_plan", f"{h}_plan") for p, h in zip(late100, hand, strict=True)],
+                       ("trained without the hand", "trained with it"), paired=True),
+              _summary(f"{trained}/vs_late100_repetitive_guarded_fade_plan.md",
+                       [(f"{p}_repetitive_guarded_fade_plan", f"{h}_repetitive_guarded_fade_plan")
+                        for p, h in zip(late100, hand, strict=True)],
+                       ("trained without the hand, correction faded in",
+                        "trained with it, correction faded in"), paired=True,
+                       extra=("--levels",)),
+              _summary(f"{trained}/vs_feedforward_repetitive_fade_plan.md",
+                       [("feedforward_repetitive_fade_plan", f"{h}_repetitive_guarded_fade_plan")
+                        for h in hand],
+                       ("feedforward + correction faded in, planner's hand",
+                        "trained with the hand + gated correction faded in")),
+              _groups_step(f"{trained}/limits.md", "limits", {
+                  "trained without the hand, correction faded in, planner's hand": [
+                      f"{p}_repetitive_guarded_fade_plan" for p in late100],
+                  "trained with the hand, correction faded in, planner's hand": [
+                      f"{h}_repetitive_guarded_fade_plan" for h in hand],
+                  "feedforward with its correction faded in, planner's hand": [
+                      "feedforward_repetitive_fade_plan"]}, "--against",
+                  "trained without the hand, correction faded in, planner's hand")]
     # ... through 3 steps of latency and under 1 cm of noise (results_prepare.PLANNED_CONDITION):
     # the study with the hand against the rival with it
     steps += [_summary(f"{on}/late100_repetitive_delay3_hand_vs_feedforward_repetitive_delay3"

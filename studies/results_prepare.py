@@ -17,6 +17,7 @@ from results_steps import (
     BY_SELECTION,
     HEADLINE,
     HEADLINE_STUDY,
+    LATE100_HAND,
     PRESET_STUDY,
     PREVIOUS,
     PREVIOUS_HEADLINE,
@@ -318,7 +319,17 @@ FADED_CONDITION = {f"late100_s{k}_repetitive_delay3_fade": (
 PLANNED = {
     **{f"late100_s{k}_plan": Variant("policy", f"seeds/{LATE100}_s{k}", None, None, plan=True)
        for k in range(1, 6)},
-    **{f"{faded}_plan": variant._replace(plan=True) for faded, variant in FADED.items()}}
+    **{f"{faded}_plan": variant._replace(plan=True) for faded, variant in FADED.items()},
+    # ... and the same fine-tune trained with the hand in the loop (its env holds it: the hand
+    # is on whether or not the flag is given), alone and with the hardware study's correction
+    # setting, gated and faded in as above: the like-for-like pair of the two rows above
+    **{f"late100hand_s{k}_plan": Variant("policy", f"seeds/{LATE100_HAND}_s{k}", None, None,
+                                         plan=True) for k in range(1, 6)},
+    **{f"late100hand_s{k}_repetitive_guarded_fade_plan": FADED[
+        f"late100_s{k}_repetitive_guarded_fade"]._replace(
+            model=f"seeds/{LATE100_HAND}_s{k}",
+            spec=("policy", f"seeds/{LATE100_HAND}_s{k}", *ONLINE_HARDWARE), plan=True)
+       for k in range(1, 6)}}
 
 
 # ... and the hand through 3 steps of latency and under 1 cm of noise (online_correction.py

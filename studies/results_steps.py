@@ -53,6 +53,8 @@ SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, t
 DEPLOY_STUDY = "deploy_lowpass_5m"  # issue 36's study (docs/questions.md 10)
 DEPLOY = "deploy_lowpass_5m"  # its chosen seed, archived
 COLLISION_SEEDS = "results/studies/collision/collision_seeds.txt"
+# the hardware study's fine-tune trained with the planner's hand in the loop (follow_plan)
+LATE100_HAND = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_plan_5m"
 
 
 @dataclass(frozen=True)
@@ -558,6 +560,10 @@ def table_steps() -> list[Step]:
               # the hardware model's share of the gain its own oracle shows (issue 37's measure)
               _with_oracle(late, "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10",
                            "ilc_hardware")]
+    # ... and the same fine-tune trained with the planner's hand in the loop: its spread (its
+    # summaries' test seeds played with the hand, as it was trained); the like-for-like tables
+    # (both studies with the hand) are results_online.py's
+    steps.append(_report(LATE100_HAND))
     # is the ceiling's lead one function of the trajectory? three oracles started from three
     # leads (the headline, the gentle preview lead, the hardware model), test seeds 0-199
     oracles = ("ilc", "ilc_preview_finetuned", "ilc_hardware")

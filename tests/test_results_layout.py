@@ -402,6 +402,29 @@ def test_the_planned_sets_hand_over_to_the_plan_and_are_replayed_without_it(tmp_
     assert _plays(tmp_path, monkeypatch, calls, prefix, without) == 1
 
 
+def test_the_hand_trained_study_is_played_like_its_control(tmp_path, monkeypatch):
+    """The fine-tune trained with the hand (results_prepare.LATE100_HAND) is played as its
+    control (the hardware study) is: its own seed's model, with the hand, and corrected with
+    the hardware study's setting, gate and fade; only the model differs."""
+    import results_prepare as rp
+
+    hand = {p: v for p, v in rp.PLANNED.items() if p.startswith("late100hand_")}
+    assert len(hand) == 10
+    _, played = _prepare_bare(tmp_path, monkeypatch, hand)
+    for k in range(1, 6):
+        model = f"archive/seeds/{rp.LATE100_HAND}_s{k}.zip"
+        alone = played[f"late100hand_s{k}_plan"]
+        assert alone[alone.index("--model") + 1] == model
+        assert alone[alone.index("--env.follow-plan") + 1] == "True"
+        ours = played[f"late100hand_s{k}_repetitive_guarded_fade_plan"]
+        control = rp.PLANNED[f"late100_s{k}_repetitive_guarded_fade_plan"]
+        assert ours[ours.index("--model") + 1] == model and "--follow-plan" in ours
+        setting = [ours[ours.index(flag) + 1] for flag in ("--gain", "--advance", "--smooth")]
+        assert setting == [str(x) for x in control.spec[3:]]
+        assert float(ours[ours.index("--max-error") + 1]) == control.gate == rp.GATE
+        assert float(ours[ours.index("--fade") + 1]) == control.fade == rp.FADE
+
+
 def test_a_baselines_file_without_a_rival_added_later_is_completed(tmp_path):
     """results_prepare runs runs.py baselines when the file is missing or lacks one of
     runs.BASELINES (the command then computes only the missing ones)."""
