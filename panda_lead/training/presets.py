@@ -549,6 +549,8 @@ PRESETS.update([
     # plan_weight observed (4 x 44-D) the policy loss leaves those steps out
     # (training.fast_ppo) and the value function can tell them apart. Knows the planned path.
     # Control: the late100 fine-tune (same start, schedule, budget, world), played with the hand.
+    # Result (5 seeds, 1,000 test seeds, both with their correction and the hand): 0.594 cm
+    # settled against 0.592, +0.002 [-0.016, +0.019]: no gain (docs/questions.md 9).
     _preset("deploy_large_batch_curv10_actions_stack4_finetuned_late100_plan",
             "deploy_large_batch_curv10_actions_stack4_finetuned_late100 trained with the "
             "planner's hand (follow_plan, plan_weight observed; obs_stack 4; 4 x 44-D): knows "
