@@ -326,7 +326,7 @@ def online_steps() -> list[Step]:
               _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
                            "hardware study, gated correction faded in"),
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
-    # ... and the same fine-tune trained with the hand in the loop (results_prepare.LATE100_HAND),
+    # ... and the same fine-tune trained with the hand in the loop (results_steps.LATE100_HAND),
     # each seed against the seed of the same start trained without it, both played with the hand
     hand = [f"late100hand_s{k}" for k in range(1, 6)]
     trained = f"results/studies/{LATE100_HAND}"

@@ -321,11 +321,7 @@ class FastPPO(PPO):
                 advantages = mb["advantages"]
                 ratio = th.exp(log_prob - mb["log_probs"])
                 if self.plan_column is None:
-                    if self.normalize_advantage and len(advantages) > 1:
-                        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-                    policy_loss_1 = advantages * ratio
-                    policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
-                    policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+                    policy_loss = self._clipped_policy_loss(advantages, ratio, clip_range)
                 else:
                     policy_loss = self._led_policy_loss(
                         advantages, ratio, clip_range,
@@ -369,18 +365,22 @@ class FastPPO(PPO):
             if self._curvature:
                 self.logger.record("train/caps_curvature", float(th.stack(caps_c).mean()))
 
-    def _led_policy_loss(self, advantages: th.Tensor, ratio: th.Tensor, clip_range: float,
-                         led: th.Tensor) -> th.Tensor:
-        """PPO's clipped policy loss over the steps the lead's action reaches the arm (``led``),
-        their advantages normalised among themselves; 0 (no gradient) when there are none."""
-        if not bool(led.any()):
-            return ratio.sum() * 0.0
-        advantages, ratio = advantages[led], ratio[led]
+    def _clipped_policy_loss(self, advantages: th.Tensor, ratio: th.Tensor,
+                             clip_range: float) -> th.Tensor:
+        """SB3's clipped policy loss, op for op (its advantages normalised per minibatch)."""
         if self.normalize_advantage and len(advantages) > 1:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
         policy_loss_1 = advantages * ratio
         policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
         return -th.min(policy_loss_1, policy_loss_2).mean()
+
+    def _led_policy_loss(self, advantages: th.Tensor, ratio: th.Tensor, clip_range: float,
+                         led: th.Tensor) -> th.Tensor:
+        """The clipped policy loss over the steps the lead's action reaches the arm (``led``),
+        their advantages normalised among themselves; 0 (no gradient) when there are none."""
+        if not bool(led.any()):
+            return ratio.sum() * 0.0
+        return self._clipped_policy_loss(advantages[led], ratio[led], clip_range)
 
     def _record(self, pg_losses, value_losses, entropy_losses, clip_fractions, approx_kl_divs,
                 loss, clip_range) -> None:
@@ -415,27 +415,27 @@ def linear_schedule(start: float):
     return schedule
 
 
+def _feature_start(config, feature: str) -> int | None:
+    """The first column of ``feature`` in the newest stacked observation, or None."""
+    from ..config import obs_layout
+
+    env = getattr(config, "env", None)
+    for name, start, _ in obs_layout(env.obs_features) if env is not None else ():
+        if name == feature:
+            return start
+    return None
+
+
 def _delay_columns(config) -> tuple[int, ...]:
     """The observation's columns holding the episode's three delays (the installation
     feature's first three), or () without that feature."""
-    from ..config import obs_layout
-
-    env = getattr(config, "env", None)
-    for name, start, _ in obs_layout(env.obs_features) if env is not None else ():
-        if name == "installation":
-            return (start, start + 1, start + 2)
-    return ()
+    start = _feature_start(config, "installation")
+    return () if start is None else (start, start + 1, start + 2)
 
 
 def _plan_column(config) -> int | None:
-    """The observation's plan_weight column (the newest stacked observation's), or None."""
-    from ..config import obs_layout
-
-    env = getattr(config, "env", None)
-    for name, start, _ in obs_layout(env.obs_features) if env is not None else ():
-        if name == "plan_weight":
-            return start
-    return None
+    """The observation's plan_weight column (the hand's weight in the next goal), or None."""
+    return _feature_start(config, "plan_weight")
 
 
 def build_ppo(config, vec, fast: bool | None = None, update_threads: int | None = None) -> PPO:
