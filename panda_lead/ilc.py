@@ -144,16 +144,21 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
 
 
 def oracle_meta(ilc: ILCConfig, start_sha256: str | None = None,
-                start_online: dict | None = None) -> dict:
+                start_online: dict | None = None, start_follow_plan: bool = False) -> dict:
     """What a rollout of the oracle records about it (rollout meta "ilc"): its settings and the
     lead it started from, ``start_model_sha256`` (the starting model's SHA-256; None when it
-    started from the analytic or zero lead) and ``start_online`` (the online correction the
-    start had on top, panda_lead/online.py; None: none). The oracle belongs to that start:
-    metrics.py refuses to pair it with another model or the same model corrected otherwise, and
-    a results script compares the hash with the model's sidecar to rebuild a stale oracle."""
+    started from the analytic or zero lead), ``start_online`` (the online correction the
+    start had on top, panda_lead/online.py; None: none) and ``start_follow_plan`` (the start
+    ran with the planner's hand, EnvConfig.follow_plan, and so does every replay: the oracle
+    then learns the lead of the episodes and stretches the plan does not hold). The oracle
+    belongs to that start: metrics.py refuses to pair it with another model or the same model
+    corrected or handed over otherwise, and a results script compares the hash with the
+    model's sidecar to rebuild a stale oracle."""
     meta = {"oracle": True, **asdict(ilc), "start_model_sha256": start_sha256}
     if start_online is not None:  # (older oracles' files have no such key: none)
         meta["start_online"] = start_online
+    if start_follow_plan:  # (older oracles' files have no such key: no hand)
+        meta["start_follow_plan"] = True
     return meta
 
 
@@ -190,6 +195,19 @@ def check_oracle_start(oracle_meta_: dict, compared: dict[str, dict], oracle_nam
         raise UserError(f"{oracle_name} started from that model with {_said(online)}, {name} "
                         f"runs it with {_said(theirs)}: rebuild the oracle from that controller "
                         "(studies/online_correction.py play --oracle)")
+    hand = bool((oracle_meta_.get("ilc") or {}).get("start_follow_plan"))
+    theirs = {name: bool((compared[name].get("env") or {}).get("follow_plan"))
+              for name, m in models.items() if m == sha}
+    if theirs and hand not in theirs.values():
+        name = next(iter(theirs))
+        raise UserError(f"{oracle_name} started from that model {_hand(hand)}, {name} runs it "
+                        f"{_hand(not hand)}: rebuild the oracle from that controller "
+                        "(studies/online_correction.py play --oracle"
+                        f"{' --follow-plan' if not hand else ''})")
+
+
+def _hand(on: bool) -> str:
+    return "with the planner's hand" if on else "without the planner's hand"
 
 
 def _said(correction: dict | None) -> str:

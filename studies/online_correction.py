@@ -124,7 +124,9 @@ class Args:
     """play: replace a set played by another controller; figure: replace an existing --out."""
     oracle: bool = False
     """play: the ILC oracle restarted from the lead with the correction (its ceiling, what
-    metrics.py --oracle reads for the share of the gain), instead of the lead itself."""
+    metrics.py --oracle reads for the share of the gain), instead of the lead itself. With
+    --follow-plan the start and every replay run with the planner's hand: the oracle learns
+    the lead wherever the plan does not hold the arm (an episode it holds ignores the lead)."""
     pairs: list[str] = field(default_factory=list)
     """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
     bootstrap: int = 10000
@@ -233,9 +235,11 @@ def _oracle(args: Args, correction):
     from panda_lead.online import wrap
 
     ilc = ILCConfig(init="policy" if args.base == "policy" else "analytic")
-    ctrl = harness.build("ilc", int(round(5.0 / control_dt())), model=args.model, ilc=ilc)
+    hand = {"follow_plan": True} if args.follow_plan else None  # every replay's too
+    ctrl = harness.build("ilc", int(round(5.0 / control_dt())), model=args.model, ilc=ilc,
+                         overrides=hand)
     meta = {**ctrl.meta, "ilc": oracle_meta(ilc, ctrl.meta["ilc"]["start_model_sha256"],
-                                            correction.meta())}
+                                            correction.meta(), args.follow_plan)}
     return replace(ctrl, meta=meta, init_act=wrap(ctrl.init_act, correction))
 
 
@@ -321,8 +325,6 @@ def play(args: Args) -> None:
             raise UserError("--oracle replays in the ideal world: drop --condition")
         if args.clearance:
             raise UserError("--oracle replays with the plain IK: drop --clearance")
-        if args.follow_plan:
-            raise UserError("--oracle replays a Cartesian lead: drop --follow-plan")
         if args.base == "feedforward":
             raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
                             "env; the feedforward base has none (its oracle is not built)")

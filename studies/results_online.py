@@ -326,6 +326,11 @@ def online_steps() -> list[Step]:
               _groups_step(f"{on}/limits_plan.md", "limits", planned, "--against",
                            "hardware study, gated correction faded in"),
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
+    # ... and the share of its own oracle's gain each seed's stack captures (the ILC restarted
+    # from it, the hand on in every replay: results_prepare.PLANNED_ORACLES; test seeds 0-199)
+    steps += [_oracle_table(f"{on}/hand_with_oracle_s{k}.md", f"{p}_repetitive_guarded_fade_plan",
+                            f"ilc_{p}_repetitive_guarded_fade_plan")
+              for k, p in enumerate(late100, start=1)]
     # ... and the same fine-tune trained with the hand in the loop (results_steps.LATE100_HAND),
     # each seed against the seed of the same start trained without it, both played with the hand
     hand = [f"late100hand_s{k}" for k in range(1, 6)]

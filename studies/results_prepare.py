@@ -332,6 +332,14 @@ PLANNED = {
        for k in range(1, 6)}}
 
 
+# ... and the ILC oracle restarted from each seed's stack (gated correction faded in, the hand
+# on: online_correction.py play --oracle --follow-plan; test seeds 0-199), whose every replay
+# runs with the hand too: the ceiling of the lead where the plan does not hold the arm
+# (prefix -> the PLANNED set it starts from)
+PLANNED_ORACLES = {f"ilc_late100_s{k}_repetitive_guarded_fade_plan":
+                   f"late100_s{k}_repetitive_guarded_fade_plan" for k in range(1, 6)}
+
+
 # ... and the hand through 3 steps of latency and under 1 cm of noise (online_correction.py
 # --condition with --follow-plan; named _hand: noise1_plan is a condition's name): the study's
 # and the rival's corrected sets of those conditions, each as registered there, the plan taking
@@ -352,7 +360,7 @@ def online_prefixes() -> set[str]:
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
                   ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE,
-                  FADED, FADED_CONDITION, PLANNED, PLANNED_CONDITION)
+                  FADED, FADED_CONDITION, PLANNED, PLANNED_CONDITION, PLANNED_ORACLES)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -446,15 +454,19 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
     _variant_sets(root, wanted, CLEARANCE, "0-999")
     _variant_sets(root, wanted, FADED, "0-999")
     _variant_sets(root, wanted, PLANNED, "0-999")
-    oracles = {**{p: (ONLINE[start], None) for p, start in ONLINE_ORACLES.items()},
-               **{p: (GATED[start][0], GATE) for p, start in GATED_ORACLES.items()}}
-    for prefix, (spec, gate) in oracles.items():
+    oracles = {**{p: (ONLINE[start], None, None, False) for p, start in ONLINE_ORACLES.items()},
+               **{p: (GATED[start][0], GATE, None, False) for p, start in GATED_ORACLES.items()},
+               **{p: (PLANNED[start].spec, PLANNED[start].gate, PLANNED[start].fade, True)
+                  for p, start in PLANNED_ORACLES.items()}}
+    for prefix, (spec, gate, fade, plan) in oracles.items():
         if not wanted(prefix):
             continue
         ilc = _first_meta(root, prefix).get("ilc") or {}
-        if (_other_setting(ilc.get("start_online") or {}, spec, gate)
+        if (_other_setting(ilc.get("start_online") or {}, spec, gate, fade)
+                or bool(ilc.get("start_follow_plan", False)) != plan
                 or ilc.get("start_model_sha256") != _archived_sha(root, spec[1])):
-            _play_online(root, spec, "0-199", prefix, "--oracle", gate=gate)
+            hand = ("--follow-plan",) if plan else ()
+            _play_online(root, spec, "0-199", prefix, "--oracle", *hand, gate=gate, fade=fade)
 
 
 def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: float = 5.0) -> None:

@@ -316,8 +316,6 @@ def test_a_command_line_tyro_cannot_parse_is_one_line(tmp_path, script, args, wo
                                       "--prefix", "x"], ["--duration", "positive"]),
     ("studies/online_correction.py", ["tune", "--base", "analytic", "--duration", "10"],
      ["--duration is for play"]),
-    ("studies/online_correction.py", ["play", "--base", "analytic", "--follow-plan", "--oracle",
-                                      "--prefix", "x"], ["--oracle", "drop --follow-plan"]),
     ("ikpd.py", ["--controller", "feedforward_plan", "--tau", "0.03", "--seeds", "0-1",
                  "--prefix", "x"], ["--tau does not apply to feedforward_plan"]),
     ("ikpd.py", ["--controller", "classical", "--env.follow-plan", "True",

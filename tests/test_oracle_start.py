@@ -103,3 +103,39 @@ def test_an_oracle_belongs_to_its_starts_online_correction_too():
         check_oracle_start(rc_oracle, {"A": {"controller": "analytic"}, "B": plain}, "o")
     check_oracle_start(rc_oracle, {"A": {"controller": "analytic"}, "B": corrected}, "o")
     check_oracle_start(plain_oracle, {"A": {"controller": "analytic"}, "B": plain}, "o")
+
+
+def test_an_oracle_belongs_to_its_starts_planner_hand_too():
+    """A start run with the planner's hand (EnvConfig.follow_plan) is another controller: on
+    the episodes the plan holds the lead is ignored, so that oracle is no ceiling for the same
+    model without the hand, nor the other way."""
+    hand_oracle = {"controller": "ilc", "ilc": oracle_meta(ILCConfig(), SHA_X, None, True)}
+    plain_oracle = {"controller": "ilc", "ilc": oracle_meta(ILCConfig(), SHA_X)}
+    handed = {"controller": "policy", "model_sha256": SHA_X, "env": {"follow_plan": True}}
+    plain = {"controller": "policy", "model_sha256": SHA_X, "env": {"follow_plan": False}}
+    analytic = {"controller": "analytic"}
+    with pytest.raises(UserError, match="with the planner's hand, B runs it without"):
+        check_oracle_start(hand_oracle, {"A": analytic, "B": plain}, "o")
+    with pytest.raises(UserError, match="without the planner's hand, B runs it with.*"
+                                        "--follow-plan"):
+        check_oracle_start(plain_oracle, {"A": analytic, "B": handed}, "o")
+    check_oracle_start(hand_oracle, {"A": analytic, "B": handed}, "o")
+    check_oracle_start(plain_oracle, {"A": analytic, "B": plain}, "o")
+    check_oracle_start(plain_oracle, {"A": analytic, "B": {"controller": "policy",
+                                                           "model_sha256": SHA_X}}, "o")
+
+
+def test_the_oracle_with_the_hand_replays_with_it_and_says_so():
+    """online_correction.py play --oracle --follow-plan: the start and every replay run with the
+    hand, and the oracle's files record it (what metrics.py's check reads)."""
+    sys.path.insert(0, str(REPO / "studies"))
+    from online_correction import Args, _oracle
+
+    from panda_lead.online import OnlineCorrection
+
+    correction = OnlineCorrection("repetitive", 0.5, 10, 3, fade=0.1)
+    for hand in (False, True):
+        ctrl = _oracle(Args(command="play", follow_plan=hand, oracle=True), correction)
+        assert ctrl.config.follow_plan is hand and ctrl.init_config.follow_plan is hand
+        assert bool(ctrl.meta["ilc"].get("start_follow_plan")) is hand
+        assert ctrl.meta["ilc"]["start_online"] == correction.meta()
