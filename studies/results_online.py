@@ -328,8 +328,11 @@ def online_steps() -> list[Step]:
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
     # ... and the share of its own oracle's gain each seed's stack captures (the ILC restarted
     # from it, the hand on in every replay: results_prepare.PLANNED_ORACLES; test seeds 0-199)
-    steps += [_oracle_table(f"{on}/hand_with_oracle_s{k}.md", f"{p}_repetitive_guarded_fade_plan",
-                            f"ilc_{p}_repetitive_guarded_fade_plan")
+    # (and, for the same starts without the hand, results_prepare.FADED_ORACLES: the ceiling
+    # the hand moves)
+    steps += [_oracle_table(f"{on}/{name}_with_oracle_s{k}.md", f"{p}_repetitive_guarded_{kind}",
+                            f"ilc_{p}_repetitive_guarded_{kind}")
+              for name, kind in (("hand", "fade_plan"), ("fade", "fade"))
               for k, p in enumerate(late100, start=1)]
     # ... and the same fine-tune trained with the hand in the loop (results_steps.LATE100_HAND),
     # each seed against the seed of the same start trained without it, both played with the hand

@@ -338,6 +338,10 @@ PLANNED = {
 # (prefix -> the PLANNED set it starts from)
 PLANNED_ORACLES = {f"ilc_late100_s{k}_repetitive_guarded_fade_plan":
                    f"late100_s{k}_repetitive_guarded_fade_plan" for k in range(1, 6)}
+# ... and from the same stacks without the hand (FADED): how far each start's ceiling moves
+# when the plan holds the arm, and how close the stack with the hand comes to the one without
+FADED_ORACLES = {f"ilc_late100_s{k}_repetitive_guarded_fade":
+                 f"late100_s{k}_repetitive_guarded_fade" for k in range(1, 6)}
 
 
 # ... and the hand through 3 steps of latency and under 1 cm of noise (online_correction.py
@@ -360,7 +364,8 @@ def online_prefixes() -> set[str]:
     baselines, the archived policies' sets, the oracles, and each online registry's."""
     registries = (ONLINE, ONLINE_PLAIN, LOOPED_SEEDS, CONDITION_PLAIN, CONDITION_ONLINE, GATED,
                   ONLINE_ORACLES, GATED_ORACLES, ORACLES, BASELINES, LONG_EPISODES, CLEARANCE,
-                  FADED, FADED_CONDITION, PLANNED, PLANNED_CONDITION, PLANNED_ORACLES)
+                  FADED, FADED_CONDITION, PLANNED, PLANNED_CONDITION, PLANNED_ORACLES,
+                  FADED_ORACLES)
     return ({p for registry in registries for p in registry} | set(POLICY_SETS)
             | set(SEED_POLICY_SETS))
 
@@ -457,7 +462,9 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
     oracles = {**{p: (ONLINE[start], None, None, False) for p, start in ONLINE_ORACLES.items()},
                **{p: (GATED[start][0], GATE, None, False) for p, start in GATED_ORACLES.items()},
                **{p: (PLANNED[start].spec, PLANNED[start].gate, PLANNED[start].fade, True)
-                  for p, start in PLANNED_ORACLES.items()}}
+                  for p, start in PLANNED_ORACLES.items()},
+               **{p: (FADED[start].spec, FADED[start].gate, FADED[start].fade, False)
+                  for p, start in FADED_ORACLES.items()}}
     for prefix, (spec, gate, fade, plan) in oracles.items():
         if not wanted(prefix):
             continue
