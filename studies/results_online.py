@@ -330,10 +330,18 @@ def online_steps() -> list[Step]:
     # from it, the hand on in every replay: results_prepare.PLANNED_ORACLES; test seeds 0-199)
     # (and, for the same starts without the hand, results_prepare.FADED_ORACLES: the ceiling
     # the hand moves)
-    steps += [_oracle_table(f"{on}/{name}_with_oracle_s{k}.md", f"{p}_repetitive_guarded_{kind}",
-                            f"ilc_{p}_repetitive_guarded_{kind}")
-              for name, kind in (("hand", "fade_plan"), ("fade", "fade"))
-              for k, p in enumerate(late100, start=1)]
+    # and the study's share over its five seeds, each seed with its own oracle (oracle_share.py)
+    for name, kind in (("hand", "fade_plan"), ("fade", "fade")):
+        steps += [_oracle_table(f"{on}/{name}_with_oracle_s{k}.md",
+                                f"{p}_repetitive_guarded_{kind}",
+                                f"ilc_{p}_repetitive_guarded_{kind}")
+                  for k, p in enumerate(late100, start=1)]
+        pairs = [(f"{p}_repetitive_guarded_{kind}", f"ilc_{p}_repetitive_guarded_{kind}")
+                 for p in late100]
+        steps.append(Step((f"{on}/{name}_with_oracle_study.md",),
+                          ("studies/oracle_share.py", "--pairs", *(":".join(x) for x in pairs)),
+                          ("rollouts/analytic", *(f"rollouts/{x}" for p in pairs for x in p)),
+                          stdout=True, section="all"))
     # ... and the same fine-tune trained with the hand in the loop (results_steps.LATE100_HAND),
     # each seed against the seed of the same start trained without it, both played with the hand
     hand = [f"late100hand_s{k}" for k in range(1, 6)]

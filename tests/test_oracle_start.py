@@ -139,3 +139,42 @@ def test_the_oracle_with_the_hand_replays_with_it_and_says_so():
         assert ctrl.config.follow_plan is hand and ctrl.init_config.follow_plan is hand
         assert bool(ctrl.meta["ilc"].get("start_follow_plan")) is hand
         assert ctrl.meta["ilc"]["start_online"] == correction.meta()
+
+
+def test_a_studys_share_pairs_each_seed_with_its_own_oracle():
+    """metrics.stats.two_level_share: the point value is the share of the means, and a seed is
+    drawn with its own ceiling: a study whose every seed reaches its own ceiling captures 100%
+    exactly, however far apart the seeds' ceilings lie (drawn apart, the CI would widen)."""
+    from panda_lead.metrics.stats import two_level_share
+
+    rng = np.random.default_rng(0)
+    base = np.full(50, 3.0)
+    share, ci = two_level_share(base, np.full((3, 50), 1.0), np.full((3, 50), 0.5), 500, rng)
+    assert share == pytest.approx(0.8) and ci == pytest.approx((0.8, 0.8))
+    ceilings = np.array([[0.2], [1.0], [2.0]]) + rng.uniform(0, 0.1, (3, 50))
+    share, ci = two_level_share(base, ceilings.copy(), ceilings, 500, rng)
+    assert share == pytest.approx(1.0) and ci == pytest.approx((1.0, 1.0))
+    with pytest.raises(ValueError, match="do not pair"):
+        two_level_share(base, np.ones((3, 50)), np.ones((2, 50)), 10, rng)
+
+
+def test_oracle_share_prints_the_studys_share_and_refuses_a_foreign_oracle(tmp_path, capsys):
+    """studies/oracle_share.py: each seed's set against its own oracle, and the study's share;
+    an oracle started from another model is refused as metrics.py refuses it."""
+    sys.path.insert(0, str(REPO / "studies"))
+    import oracle_share
+
+    write(tmp_path, "analytic", 0.03, {"controller": "analytic", "tau": 0.04})
+    for k, sha in ((1, SHA_X), (2, SHA_Y)):
+        write(tmp_path, f"lead{k}", 0.01, {"controller": "policy", "model_sha256": sha})
+        write(tmp_path, f"oracle{k}", 0.005, oracle(sha))
+    args = oracle_share.Args(pairs=["lead1:oracle1", "lead2:oracle2"], root=tmp_path,
+                             bootstrap=200)
+    oracle_share.main(args)
+    out = capsys.readouterr().out
+    assert "| lead2 | oracle2 | 1.00 / 0.50 | 80% | 1.00 / 0.50 | 80% |" in out
+    assert out.count("captured **80% [80, 80]**") == 2  # (3 - 1) / (3 - 0.5), mean and settled
+    with pytest.raises(UserError, match="rebuild"):
+        oracle_share.main(oracle_share.Args(pairs=["lead1:oracle2"], root=tmp_path))
+    with pytest.raises(UserError, match="not an ILC oracle"):
+        oracle_share.main(oracle_share.Args(pairs=["lead1:lead2"], root=tmp_path))

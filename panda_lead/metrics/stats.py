@@ -365,6 +365,31 @@ def share_captured(base: np.ndarray, learned: np.ndarray, ceiling: np.ndarray,
     return float(ratio(v.mean(axis=0))), (float(lo), float(hi))
 
 
+def two_level_share(base: np.ndarray, learned: np.ndarray, ceiling: np.ndarray, n_boot: int,
+                    rng: np.random.Generator) -> tuple[float, tuple[float, float]]:
+    """share_captured for a study: (base - learned) / (base - ceiling), each side its mean over
+    training seeds and trajectories, and the 95% percentile CI of a two-level bootstrap.
+    ``base`` (T,) is one reference controller, ``learned`` and ``ceiling`` (K, T) a study's K
+    seeds and each seed's own ceiling (the oracle restarted from that seed), on the same T
+    trajectories. Each resample draws the trajectories (for all three) and the seeds (a seed
+    and its own ceiling together) with replacement."""
+    base, learned, ceiling = (np.asarray(x, dtype=float) for x in (base, learned, ceiling))
+    if learned.shape != ceiling.shape or learned.shape[1:] != base.shape:
+        raise ValueError(f"shapes do not pair: base {base.shape}, learned {learned.shape}, "
+                         f"ceiling {ceiling.shape}")
+
+    def ratio(b: float, lead: float, top: float) -> float:
+        return (b - lead) / (b - top)
+
+    boots = np.empty(n_boot)
+    k, n = learned.shape
+    for i in range(n_boot):
+        t, s = rng.integers(0, n, n), rng.integers(0, k, k)
+        boots[i] = ratio(base[t].mean(), learned[s][:, t].mean(), ceiling[s][:, t].mean())
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return ratio(base.mean(), learned.mean(), ceiling.mean()), (float(lo), float(hi))
+
+
 def claim(row: Row, label_b: str = "B") -> str:
     """One line: the mean and median differences, each 'shown' or 'not shown' by
     `finding_verdict` (the mean with its Holm-adjusted Wilcoxon p, the median with its
