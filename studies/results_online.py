@@ -327,10 +327,9 @@ def online_steps() -> list[Step]:
                            "hardware study, gated correction faded in"),
               _groups_step(f"{on}/excursions_plan.md", "excursions", planned)]
     # ... and the share of its own oracle's gain each seed's stack captures (the ILC restarted
-    # from it, the hand on in every replay: results_prepare.PLANNED_ORACLES; test seeds 0-199)
-    # (and, for the same starts without the hand, results_prepare.FADED_ORACLES: the ceiling
-    # the hand moves)
-    # and the study's share over its five seeds, each seed with its own oracle (oracle_share.py)
+    # from it, the hand on in every replay: results_prepare.PLANNED_ORACLES; test seeds 0-199),
+    # and the study's over its five seeds (oracle_share.py); the same for the stacks without the
+    # hand (FADED_ORACLES: whether the hand moves the ceiling it is measured against)
     for name, kind in (("hand", "fade_plan"), ("fade", "fade")):
         steps += [_oracle_table(f"{on}/{name}_with_oracle_s{k}.md",
                                 f"{p}_repetitive_guarded_{kind}",
