@@ -144,21 +144,25 @@ def learn_leads(config: EnvConfig, seeds, shapes, ilc: ILCConfig, init_act, nthr
 
 
 def oracle_meta(ilc: ILCConfig, start_sha256: str | None = None,
-                start_online: dict | None = None, start_follow_plan: bool = False) -> dict:
+                start_online: dict | None = None, start_follow_plan: bool = False,
+                start_clearance: float = 0.0) -> dict:
     """What a rollout of the oracle records about it (rollout meta "ilc"): its settings and the
     lead it started from, ``start_model_sha256`` (the starting model's SHA-256; None when it
     started from the analytic or zero lead), ``start_online`` (the online correction the
     start had on top, panda_lead/online.py; None: none) and ``start_follow_plan`` (the start
     ran with the planner's hand, EnvConfig.follow_plan, and so does every replay: the oracle
-    then learns the lead of the episodes and stretches the plan does not hold). The oracle
-    belongs to that start: metrics.py refuses to pair it with another model or the same model
-    corrected or handed over otherwise, and a results script compares the hash with the
-    model's sidecar to rebuild a stale oracle."""
+    then learns the lead of the episodes and stretches the plan does not hold) and
+    ``start_clearance`` (the start and every replay on the collision-aware IK with this
+    clearance, m; 0: the plain IK). The oracle belongs to that start: metrics.py refuses to
+    pair it with another model or the same model corrected, handed over or on another IK, and
+    a results script compares the hash with the model's sidecar to rebuild a stale oracle."""
     meta = {"oracle": True, **asdict(ilc), "start_model_sha256": start_sha256}
     if start_online is not None:  # (older oracles' files have no such key: none)
         meta["start_online"] = start_online
     if start_follow_plan:  # (older oracles' files have no such key: no hand)
         meta["start_follow_plan"] = True
+    if start_clearance:  # (... nor this one: the plain IK)
+        meta["start_clearance"] = float(start_clearance)
     return meta
 
 
@@ -195,19 +199,29 @@ def check_oracle_start(oracle_meta_: dict, compared: dict[str, dict], oracle_nam
         raise UserError(f"{oracle_name} started from that model with {_said(online)}, {name} "
                         f"runs it with {_said(theirs)}: rebuild the oracle from that controller "
                         "(studies/online_correction.py play --oracle)")
-    hand = bool((oracle_meta_.get("ilc") or {}).get("start_follow_plan"))
-    theirs = {name: bool((compared[name].get("env") or {}).get("follow_plan"))
-              for name, m in models.items() if m == sha}
-    if theirs and hand not in theirs.values():
-        name = next(iter(theirs))
-        raise UserError(f"{oracle_name} started from that model {_hand(hand)}, {name} runs it "
-                        f"{_hand(not hand)}: rebuild the oracle from that controller "
-                        "(studies/online_correction.py play --oracle"
-                        f"{' --follow-plan' if not hand else ''})")
+    mine = _env_facts((oracle_meta_.get("ilc") or {}).get("start_follow_plan"),
+                      (oracle_meta_.get("ilc") or {}).get("start_clearance"))
+    theirs = {name: _env_facts(env.get("follow_plan"), (env.get("ik") or {}).get("clearance"))
+              for name, env in ((n, compared[n].get("env") or {}) for n, m in models.items()
+                                if m == sha)}
+    if theirs and mine not in theirs.values():
+        name, other = next(iter(theirs.items()))
+        flags = (" --follow-plan" if other[0] else "") + (
+            f" --clearance {other[1]:g}" if other[1] else "")
+        raise UserError(f"{oracle_name} started from that model {_said_env(mine)}, {name} runs "
+                        f"it {_said_env(other)}: rebuild the oracle from that controller "
+                        f"(studies/online_correction.py play --oracle{flags})")
 
 
-def _hand(on: bool) -> str:
-    return "with the planner's hand" if on else "without the planner's hand"
+def _env_facts(follow_plan, clearance) -> tuple[bool, float]:
+    """(the planner's hand on, the IK's clearance in m): what a start and its replays share."""
+    return bool(follow_plan), float(clearance or 0.0)
+
+
+def _said_env(facts: tuple[bool, float]) -> str:
+    hand, clearance = facts
+    ik = f"on the collision-aware IK ({clearance:g} m)" if clearance else "on the plain IK"
+    return f"{'with' if hand else 'without'} the planner's hand, {ik}"
 
 
 def _said(correction: dict | None) -> str:

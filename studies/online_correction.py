@@ -126,7 +126,8 @@ class Args:
     """play: the ILC oracle restarted from the lead with the correction (its ceiling, what
     metrics.py --oracle reads for the share of the gain), instead of the lead itself. With
     --follow-plan the start and every replay run with the planner's hand: the oracle learns
-    the lead wherever the plan does not hold the arm (an episode it holds ignores the lead)."""
+    the lead wherever the plan does not hold the arm (an episode it holds ignores the lead);
+    with --clearance every replay runs on the collision-aware IK."""
     pairs: list[str] = field(default_factory=list)
     """summary: PLAIN:CORRECTED rollout-set prefixes, one pair per training seed's model."""
     bootstrap: int = 10000
@@ -209,8 +210,7 @@ def _base(args: Args):
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
     late = condition_overrides(args.condition, args.base)
-    if not (np.isfinite(args.clearance) and args.clearance >= 0):
-        raise UserError(f"--clearance must be a distance >= 0 (m), got {args.clearance}")
+    _check_clearance(args)
     if args.clearance:
         late = {**(late or {}), "ik": {"clearance": args.clearance}}
     if args.follow_plan:
@@ -235,12 +235,20 @@ def _oracle(args: Args, correction):
     from panda_lead.online import wrap
 
     ilc = ILCConfig(init="policy" if args.base == "policy" else "analytic")
-    hand = {"follow_plan": True} if args.follow_plan else None  # every replay's too
+    late = {"follow_plan": True} if args.follow_plan else {}  # every replay's too
+    late |= {"ik": {"clearance": args.clearance}} if args.clearance else {}
     ctrl = harness.build("ilc", int(round(5.0 / control_dt())), model=args.model, ilc=ilc,
-                         overrides=hand)
+                         overrides=late or None)
     meta = {**ctrl.meta, "ilc": oracle_meta(ilc, ctrl.meta["ilc"]["start_model_sha256"],
-                                            correction.meta(), args.follow_plan)}
+                                            correction.meta(), args.follow_plan,
+                                            args.clearance)}
     return replace(ctrl, meta=meta, init_act=wrap(ctrl.init_act, correction))
+
+
+def _check_clearance(args: Args) -> None:
+    """--clearance is a distance: refused before anything is played or written."""
+    if not (np.isfinite(args.clearance) and args.clearance >= 0):
+        raise UserError(f"--clearance must be a distance >= 0 (m), got {args.clearance}")
 
 
 def _check_fade(args: Args) -> None:
@@ -319,12 +327,11 @@ def play(args: Args) -> None:
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
+        _check_clearance(args)
         if args.duration != Args.duration:
             raise UserError("--oracle replays the test seeds' 5 s episodes: drop --duration")
         if args.condition != "none":
             raise UserError("--oracle replays in the ideal world: drop --condition")
-        if args.clearance:
-            raise UserError("--oracle replays with the plain IK: drop --clearance")
         if args.base == "feedforward":
             raise UserError("--oracle starts the ILC oracle from a Cartesian lead on the plain "
                             "env; the feedforward base has none (its oracle is not built)")

@@ -329,8 +329,9 @@ def online_steps() -> list[Step]:
     # ... and the share of its own oracle's gain each seed's stack captures (the ILC restarted
     # from it, the hand on in every replay: results_prepare.PLANNED_ORACLES; test seeds 0-199),
     # and the study's over its five seeds (oracle_share.py); the same for the stacks without the
-    # hand (FADED_ORACLES: whether the hand moves the ceiling it is measured against)
-    for name, kind in (("hand", "fade_plan"), ("fade", "fade")):
+    # hand (FADED_ORACLES: whether the hand moves the ceiling it is measured against) and for
+    # the stacks on the collision-aware IK (the stack for a real arm)
+    for name, kind in (("hand", "fade_plan"), ("fade", "fade"), ("hand_clear", "clear_fade_plan")):
         steps += [_oracle_table(f"{on}/{name}_with_oracle_s{k}.md",
                                 f"{p}_repetitive_guarded_{kind}",
                                 f"ilc_{p}_repetitive_guarded_{kind}")

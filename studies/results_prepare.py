@@ -334,10 +334,12 @@ PLANNED = {
 
 # ... and the ILC oracle restarted from each seed's stack (gated correction faded in, the hand
 # on: online_correction.py play --oracle --follow-plan; test seeds 0-199), whose every replay
-# runs with the hand too: the ceiling of the lead where the plan does not hold the arm
+# runs with the hand too: the ceiling of the lead where the plan does not hold the arm; on the
+# plain IK and on the collision-aware one (--clearance: the stack for a real arm)
 # (prefix -> the PLANNED set it starts from)
-PLANNED_ORACLES = {f"ilc_late100_s{k}_repetitive_guarded_fade_plan":
-                   f"late100_s{k}_repetitive_guarded_fade_plan" for k in range(1, 6)}
+PLANNED_ORACLES = {f"ilc_late100_s{k}_repetitive_guarded{ik}_fade_plan":
+                   f"late100_s{k}_repetitive_guarded{ik}_fade_plan"
+                   for ik in ("", "_clear") for k in range(1, 6)}
 # ... and from the same stacks without the hand (FADED): how far each start's ceiling moves
 # when the plan holds the arm, and how close the stack with the hand comes to the one without
 FADED_ORACLES = {f"ilc_late100_s{k}_repetitive_guarded_fade":
@@ -459,21 +461,24 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
     _variant_sets(root, wanted, CLEARANCE, "0-999")
     _variant_sets(root, wanted, FADED, "0-999")
     _variant_sets(root, wanted, PLANNED, "0-999")
-    oracles = {**{p: (ONLINE[start], None, None, False) for p, start in ONLINE_ORACLES.items()},
-               **{p: (GATED[start][0], GATE, None, False) for p, start in GATED_ORACLES.items()},
-               **{p: (PLANNED[start].spec, PLANNED[start].gate, PLANNED[start].fade, True)
-                  for p, start in PLANNED_ORACLES.items()},
-               **{p: (FADED[start].spec, FADED[start].gate, FADED[start].fade, False)
-                  for p, start in FADED_ORACLES.items()}}
-    for prefix, (spec, gate, fade, plan) in oracles.items():
+    oracles = {**{p: Variant("policy", None, ONLINE[start], None)
+                  for p, start in ONLINE_ORACLES.items()},
+               **{p: Variant("policy", None, GATED[start][0], GATE)
+                  for p, start in GATED_ORACLES.items()},
+               **{p: PLANNED[start] for p, start in PLANNED_ORACLES.items()},
+               **{p: FADED[start] for p, start in FADED_ORACLES.items()}}
+    for prefix, start in oracles.items():  # (each the Variant of the set it starts from)
         if not wanted(prefix):
             continue
         ilc = _first_meta(root, prefix).get("ilc") or {}
-        if (_other_setting(ilc.get("start_online") or {}, spec, gate, fade)
-                or bool(ilc.get("start_follow_plan", False)) != plan
-                or ilc.get("start_model_sha256") != _archived_sha(root, spec[1])):
-            hand = ("--follow-plan",) if plan else ()
-            _play_online(root, spec, "0-199", prefix, "--oracle", *hand, gate=gate, fade=fade)
+        if (_other_setting(ilc.get("start_online") or {}, start.spec, start.gate, start.fade)
+                or bool(ilc.get("start_follow_plan", False)) != start.plan
+                or float(ilc.get("start_clearance", 0.0)) != start.clearance
+                or ilc.get("start_model_sha256") != _archived_sha(root, start.spec[1])):
+            aware = ("--follow-plan",) if start.plan else ()
+            aware += ("--clearance", str(start.clearance)) if start.clearance else ()
+            _play_online(root, start.spec, "0-199", prefix, "--oracle", *aware, gate=start.gate,
+                         fade=start.fade)
 
 
 def _variant_sets(root: Path, wanted, registry: dict, seeds: str, duration: float = 5.0) -> None:

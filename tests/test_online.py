@@ -535,8 +535,8 @@ def test_the_clearance_reaches_every_base_and_keeps_the_corrected_arm_off_itself
     for bad in (-0.01, float("nan")):
         with pytest.raises(UserError, match="--clearance"):
             _base(Args(command="play", clearance=bad))
-    with pytest.raises(UserError, match="drop --clearance"):
-        play(Args(command="play", oracle=True, clearance=0.02, prefix="x"))
+    with pytest.raises(UserError, match="--clearance must be a distance"):
+        play(Args(command="play", oracle=True, clearance=-0.02, prefix="x"))
     from online_correction import tune
 
     for bad in (-0.1, float("nan")):  # a fade is refused before anything is played

@@ -114,10 +114,11 @@ def test_an_oracle_belongs_to_its_starts_planner_hand_too():
     handed = {"controller": "policy", "model_sha256": SHA_X, "env": {"follow_plan": True}}
     plain = {"controller": "policy", "model_sha256": SHA_X, "env": {"follow_plan": False}}
     analytic = {"controller": "analytic"}
-    with pytest.raises(UserError, match="with the planner's hand, B runs it without"):
+    with pytest.raises(UserError, match="with the planner's hand, on the plain IK, B runs it "
+                                        "without"):
         check_oracle_start(hand_oracle, {"A": analytic, "B": plain}, "o")
-    with pytest.raises(UserError, match="without the planner's hand, B runs it with.*"
-                                        "--follow-plan"):
+    with pytest.raises(UserError, match="without the planner's hand, on the plain IK, B runs "
+                                        "it with.*--follow-plan"):
         check_oracle_start(plain_oracle, {"A": analytic, "B": handed}, "o")
     check_oracle_start(hand_oracle, {"A": analytic, "B": handed}, "o")
     check_oracle_start(plain_oracle, {"A": analytic, "B": plain}, "o")
@@ -125,19 +126,39 @@ def test_an_oracle_belongs_to_its_starts_planner_hand_too():
                                                            "model_sha256": SHA_X}}, "o")
 
 
+def test_an_oracle_belongs_to_its_starts_ik_too():
+    """A start on the collision-aware IK (--clearance) is another controller: its oracle is no
+    ceiling for the same model on the plain IK, nor the other way, nor for another clearance."""
+    clear_oracle = {"controller": "ilc", "ilc": oracle_meta(ILCConfig(), SHA_X, None, True, 0.03)}
+    def on(clearance):
+        return {"controller": "policy", "model_sha256": SHA_X,
+                "env": {"follow_plan": True, "ik": {"clearance": clearance}}}
+    analytic = {"controller": "analytic"}
+    check_oracle_start(clear_oracle, {"A": analytic, "B": on(0.03)}, "o")
+    with pytest.raises(UserError, match=r"collision-aware IK \(0.03 m\), B runs it with the "
+                                        "planner's hand, on the plain IK"):
+        check_oracle_start(clear_oracle, {"A": analytic, "B": on(0.0)}, "o")
+    with pytest.raises(UserError, match="--follow-plan --clearance 0.02"):
+        check_oracle_start(clear_oracle, {"A": analytic, "B": on(0.02)}, "o")
+
+
 def test_the_oracle_with_the_hand_replays_with_it_and_says_so():
-    """online_correction.py play --oracle --follow-plan: the start and every replay run with the
-    hand, and the oracle's files record it (what metrics.py's check reads)."""
+    """online_correction.py play --oracle --follow-plan (--clearance): the start and every
+    replay run with the hand (on the collision-aware IK), and the oracle's files record it
+    (what metrics.py's check reads)."""
     sys.path.insert(0, str(REPO / "studies"))
     from online_correction import Args, _oracle
 
     from panda_lead.online import OnlineCorrection
 
     correction = OnlineCorrection("repetitive", 0.5, 10, 3, fade=0.1)
-    for hand in (False, True):
-        ctrl = _oracle(Args(command="play", follow_plan=hand, oracle=True), correction)
+    for hand, clearance in ((False, 0.0), (True, 0.0), (True, 0.03)):
+        ctrl = _oracle(Args(command="play", follow_plan=hand, clearance=clearance, oracle=True),
+                       correction)
         assert ctrl.config.follow_plan is hand and ctrl.init_config.follow_plan is hand
+        assert ctrl.config.ik.clearance == ctrl.init_config.ik.clearance == clearance
         assert bool(ctrl.meta["ilc"].get("start_follow_plan")) is hand
+        assert ctrl.meta["ilc"].get("start_clearance", 0.0) == clearance
         assert ctrl.meta["ilc"]["start_online"] == correction.meta()
 
 
