@@ -348,12 +348,10 @@ def play(args: Args) -> None:
 
 
 def _set_metrics(prefix: str, settle_time: float = 0.5) -> dict[int, dict[str, float]]:
-    from panda_lead.metrics.pairing import charged, load_set
-    from panda_lead.metrics.stats import rollout_metrics
+    from panda_lead.metrics.pairing import charged_metrics, load_set
     from panda_lead.rollout import ROLLOUT_DIR
 
-    return {seed: rollout_metrics(charged(r)[0], settle_time) for seed, r in
-            load_set(prefix, ROLLOUT_DIR).items()}
+    return charged_metrics(load_set(prefix, ROLLOUT_DIR), settle_time)
 
 
 def summary(args: Args) -> None:

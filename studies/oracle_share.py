@@ -45,16 +45,9 @@ class Args:
 KEYS = (("mean_err", "mean error"), ("settled_err", "settled mean error"))
 
 
-def _metrics(rollouts: dict, settle_time: float) -> dict[int, dict[str, float]]:
-    from panda_lead.metrics.pairing import charged
-    from panda_lead.metrics.stats import rollout_metrics
-
-    return {seed: rollout_metrics(charged(r)[0], settle_time) for seed, r in rollouts.items()}
-
-
 def main(args: Args) -> None:
     from panda_lead.ilc import check_oracle_start
-    from panda_lead.metrics.pairing import check_sets, load_set, seed_set_title
+    from panda_lead.metrics.pairing import charged_metrics, check_sets, load_set, seed_set_title
     from panda_lead.metrics.stats import two_level_share
 
     if not args.pairs or any(p.count(":") != 1 or "" in p.split(":") for p in args.pairs):
@@ -77,7 +70,7 @@ def main(args: Args) -> None:
     seeds = sorted(set.intersection(*(set(r) for r in loaded.values())))
     if len(seeds) < 2:
         raise UserError(f"the sets share {len(seeds)} trajectory seeds; the share needs >= 2")
-    scored = {name: _metrics({s: loaded[name][s] for s in seeds}, args.settle_time)
+    scored = {name: charged_metrics({s: loaded[name][s] for s in seeds}, args.settle_time)
               for name in loaded}
 
     def array(name: str, key: str) -> np.ndarray:

@@ -461,9 +461,9 @@ def _online_sets(root: Path, wanted=lambda prefix: True) -> None:
     _variant_sets(root, wanted, CLEARANCE, "0-999")
     _variant_sets(root, wanted, FADED, "0-999")
     _variant_sets(root, wanted, PLANNED, "0-999")
-    oracles = {**{p: Variant("policy", None, ONLINE[start], None)
+    oracles = {**{p: Variant("policy", ONLINE[start][1], ONLINE[start], None)
                   for p, start in ONLINE_ORACLES.items()},
-               **{p: Variant("policy", None, GATED[start][0], GATE)
+               **{p: Variant("policy", GATED[start][0][1], GATED[start][0], GATE)
                   for p, start in GATED_ORACLES.items()},
                **{p: PLANNED[start] for p, start in PLANNED_ORACLES.items()},
                **{p: FADED[start] for p, start in FADED_ORACLES.items()}}

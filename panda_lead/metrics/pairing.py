@@ -191,6 +191,13 @@ def charged(r: Rollout) -> tuple[Rollout, str | None]:
     return Rollout(**fields, meta={**r.meta, "charged": reason}), reason
 
 
+def charged_metrics(rollouts: dict[int, Rollout], settle_time: float = 0.5
+                    ) -> dict[int, dict[str, float]]:
+    """Each seed's rollout_metrics, a failed episode charged (`charged`): how the study
+    scripts score a set outside metrics.py's pairing."""
+    return {seed: rollout_metrics(charged(r)[0], settle_time) for seed, r in rollouts.items()}
+
+
 @dataclass
 class Pairing:
     """Which seeds the sets are compared on (every seed in all of them), the rollouts to score
