@@ -5,7 +5,17 @@ results_steps.py to keep each file readable in one sitting; table_steps calls on
 
 from __future__ import annotations
 
-from results_steps import HEADLINE, LATE100_HAND, Step, _compare, _oracle_table, _pair, _report, _summary
+from results_steps import (
+    HARDWARE,
+    HEADLINE,
+    LATE100_HAND,
+    Step,
+    _compare,
+    _oracle_table,
+    _pair,
+    _report,
+    _summary,
+)
 
 
 def _groups_step(out: str, command: str, groups: dict[str, list[str]], *extra: str) -> Step:
@@ -31,7 +41,7 @@ def online_steps() -> list[Step]:
               _pair("analytic_repetitive", "headline_repetitive",
                     f"{on}/headline_repetitive_vs_analytic_repetitive.md")]
     # ... and on the hardware model (its own tuning: its arm filter lags), against its own oracle
-    hw = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
+    hw = HARDWARE
     steps += [_pair(hw, "hardware_repetitive", f"{on}/hardware_repetitive_vs_hardware.md"),
               _oracle_table(f"{on}/hardware_repetitive_with_oracle.md", "hardware_repetitive",
                             "ilc_hardware_repetitive")]

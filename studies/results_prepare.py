@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 from results_steps import (
     BY_SELECTION,
+    HARDWARE,
     HEADLINE,
     HEADLINE_STUDY,
     LATE100_HAND,
@@ -145,9 +146,6 @@ KEPT = {"delayed_5m": "delayed_5m*", "err_delayed": "err_delayed*", "noisy_5m": 
            if s not in EXTRA_SEEDS},
         # (a study grown from its pilot under another sweep name: both sweeps' runs)
         **{s: f"{s}*" for s in (*LARGE_BATCH, *CONTINUED) if s in EXTRA_SEEDS}}
-# the hardware model (README, "Which model for a real arm"): its share of its own oracle's gain
-HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
-# (every seed's model committed, archive/seeds/, for the per-seed tables)
 # the classical controllers' sets (ikpd.py): prefix -> its flags
 BASELINES = {"classical": [], "analytic": ["--controller", "analytic"],
              "feedforward": ["--controller", "feedforward"],
