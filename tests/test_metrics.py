@@ -379,6 +379,19 @@ def test_seed_set_titles_and_colours():
     many = figures.colours_for([f"model {i}" for i in range(30)])
     assert len(many) == 30
     assert len({to_hex(many[f"model {i}"]) for i in range(15)}) == 15
+    # the deploy figure's five models beside the baselines and both rivals: every model a hue
+    # of its own, none a pale shade of the classical controller's blue
+    from colorsys import rgb_to_hsv
+
+    from matplotlib.colors import to_rgb
+
+    models = [f"model {i}" for i in range(5)]
+    deploy = figures.colours_for(["Classical", "Analytic", *models, "Analytic+predict",
+                                  "Analytic+filter"])
+    assert len(set(deploy.values())) == 9
+    hue = {lab: rgb_to_hsv(*to_rgb(c))[0] for lab, c in deploy.items()}
+    assert all(abs(hue[m] - hue["Classical"]) > 0.05 for m in models)
+    assert deploy["Classical"] == figures.COLOURS["Classical"]  # the baselines' never lent
 
 
 def test_family_colours_give_a_study_one_hue_and_its_seeds_shades():

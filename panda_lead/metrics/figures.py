@@ -27,18 +27,24 @@ MIN_PER_BIN = 5
 
 def colours_for(labels) -> dict[str, str]:
     """One colour per label: the fixed COLOURS where known, else the next unused tab10 colour
-    (never C7, grey: the colour of the reference lines), then tab20's lighter shades, then
-    tab20b's dark hues, then around again (a figure of many labels repeats colours; it does
-    not fail)."""
+    (never C7, grey: the colour of the reference lines; a fixed rival's or RL+Lead's colour only
+    when that label is not in the figure, the baselines' never), then tab20's lighter shades,
+    then tab20b's dark hues, then around again (a figure of many labels repeats colours; it
+    does not fail)."""
     from itertools import cycle
 
+    labels = list(dict.fromkeys(labels))
+    taken = {COLOURS[lab] for lab in labels if lab in COLOURS}
     spare = [f"C{i}" for i in (3, 4, 5, 6, 8, 9)]
     spare = [c for c in spare if c not in COLOURS.values()]
+    # then the colours of fixed labels absent here (green, RL+Lead's, before tab20's pale
+    # blue: a fifth model in the deploy figure read as a shade of the classical controller)
+    spare += [c for lab, c in COLOURS.items()
+              if lab not in ("Classical", "Analytic") and c not in taken and c not in spare]
     spare += [f"tab20:{i}" for i in range(1, 20, 2) if i != 15]  # tab20's light shades, no grey
     spare += [f"tab20b:{i}" for i in range(0, 20, 4)]  # then tab20b's five dark hues
     free = cycle(spare)
-    return {lab: COLOURS[lab] if lab in COLOURS else _colour(next(free))
-            for lab in dict.fromkeys(labels)}
+    return {lab: COLOURS[lab] if lab in COLOURS else _colour(next(free)) for lab in labels}
 
 
 def family_colours(labels) -> dict[str, tuple]:
