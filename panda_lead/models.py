@@ -37,11 +37,12 @@ from .atomicio import atomic_write, file_lock
 from .config import OBS_12, OBS_15, OBS_29, OBS_FEATURES, EnvConfig
 from .errors import UserError
 from .paths import shipped
+from .roles import HEADLINE
 
 ARCHIVE_DIR = Path("archive")  # where train.py --archive writes, in the working folder
-# The headline model: what eval.py runs when no --model is given (named, not the newest file:
-# git keeps no modification times).
-DEFAULT_MODEL = "v5_err_decay_kept_s3"
+# The headline model (roles.py): what eval.py runs when no --model is given (named, not the
+# newest file: git keeps no modification times).
+DEFAULT_MODEL = HEADLINE
 SIDECAR_MEMBER = "panda_lead_sidecar.json"
 ACTIVATIONS = ("tanh", "relu")
 # Size bounds, checked before anything is read: far above any real model of this repo (a

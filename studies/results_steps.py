@@ -1,5 +1,6 @@
 """The steps of `studies/results.py`: every table and figure under results/ that a command
-remakes, the command, and what it reads. Read by results.py; change the headline here.
+remakes, the command, and what it reads. Read by results.py; the headline's and the hardware
+model's names are panda_lead/roles.py's.
 
 A step's command is an argument list run with the repo's Python (shown as `uv run ...`).
 `{out0}`, `{out1}`... stand for its outputs and `{dir}` for their folder: the step runs with
@@ -13,15 +14,17 @@ from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 
+from panda_lead.roles import HARDWARE, HEADLINE  # noqa: F401  (re-exported to results_*.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # The headline: by issue 37's rule (docs/training.md), the presets' budget's first study on
 # the selection set and its first model there, archived under the run's name. From 2026-11-27:
 # the headline preset's study retrained with its seeds kept, `v5_err_decay_kept`, its seed 3.
+# Its name, and the hardware model's, live in panda_lead/roles.py (the cards say the roles).
 # When it moves, move results/headline/'s model tables to results/history/<old>/
 # (history/README.md) and rerun.
 HEADLINE_STUDY = "v5_err_decay_kept"
-HEADLINE = "v5_err_decay_kept_s3"
 # the headline's preset's first study (2026-11-24/25): the study-level comparisons quote it
 PRESET_STUDY = "v5_err_decay"
 PREVIOUS_HEADLINE = "v5_err_decay_s4"  # the headline before (its tables: history/); issue 36's
@@ -52,9 +55,6 @@ SHARE_LADDER = ["gpu_v5_err_decay_5m_s3", "gpu_deploy_nominal_only_5m_s3",
 SMOOTH = "v5_err_decay_smooth"  # the smooth alternative (docs/questions.md 6, the jerk)
 DEPLOY_STUDY = "deploy_lowpass_5m"  # issue 36's study (docs/questions.md 10)
 DEPLOY = "deploy_lowpass_5m"  # its chosen seed, archived
-# the hardware model (README, "Which model for a real arm"): the first to meet all of issue
-# 36's targets; every seed's model committed too (archive/seeds/, for the per-seed tables)
-HARDWARE = "deploy_large_batch_curv10_actions_stack4_20m_late100_lp10"
 COLLISION_SEEDS = "results/studies/collision/collision_seeds.txt"
 # the hardware study's fine-tune trained with the planner's hand in the loop (follow_plan)
 LATE100_HAND = "deploy_large_batch_curv10_actions_stack4_finetuned_late100_plan_5m"

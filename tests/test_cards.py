@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from panda_lead import roles
 from panda_lead.models import verify
 from panda_lead.training import archive
 from panda_lead.training.archive import PINNED_MATRIX_PATH, pinned_card_number, write_card
@@ -126,6 +127,43 @@ def test_a_card_says_when_its_quick_test_plays_a_non_nominal_training_world(tmp_
     nominal = write_card(tmp_path / "ikfree_long.zip", verify(tmp_path / "ikfree_long.zip"),
                          seed0=1.0).read_text()
     assert "training world" not in nominal
+
+
+def _flat(text: str) -> str:
+    return " ".join(text.split())
+
+
+def test_a_card_says_its_models_role_and_a_model_without_one_says_none(tmp_path):
+    # The hardware model's card is the recommended model's (issue 36: "archive it with its card
+    # as the recommended model for hardware"); a model with no role gets no such section.
+    for name in (roles.HARDWARE, "ikfree_long"):
+        for suffix in (".zip", ".json"):
+            shutil.copy2(ROOT / "archive" / f"{name}{suffix}", tmp_path / f"{name}{suffix}")
+    card = write_card(tmp_path / f"{roles.HARDWARE}.zip",
+                      verify(tmp_path / f"{roles.HARDWARE}.zip"), seed0=1.0).read_text()
+    assert "## Role" in card and "**The recommended model for a real arm**" in card
+    assert _flat(roles.ROLES[roles.HARDWARE]) in _flat(card)
+    plain = write_card(tmp_path / "ikfree_long.zip", verify(tmp_path / "ikfree_long.zip"),
+                       seed0=1.0).read_text()
+    assert "## Role" not in plain
+
+
+@pytest.mark.parametrize("name", sorted(roles.ROLES))
+def test_each_role_names_an_archived_model_whose_committed_card_says_it(name):
+    # a role changed in panda_lead/roles.py without rewrite_cards([...]) fails here
+    assert (ROOT / "archive" / f"{name}.zip").exists(), name
+    card = (ROOT / "archive" / f"{name}.md").read_text()
+    assert _flat(roles.ROLES[name]) in _flat(card)
+    others = [p for p in CARDS if p.stem not in roles.ROLES]
+    assert not [p.name for p in others if "## Role" in p.read_text()]
+
+
+def test_the_readme_names_the_models_the_roles_name():
+    readme = (ROOT / "README.md").read_text()
+    answer = readme.split("## The answer", 1)[1].split("\n## ", 1)[0]
+    hardware = readme.split("## Which model for a real arm", 1)[1].split("\n## ", 1)[0]
+    assert f"(`archive/{roles.HEADLINE}.zip`, the headline" in _flat(answer)
+    assert f"**`archive/{roles.HARDWARE}.zip`**" in _flat(hardware)
 
 
 def test_a_card_is_numbered_on_the_pinned_matrix_path_from_any_process(monkeypatch):

@@ -233,11 +233,11 @@ EVAL_HELP = """Run a policy (or a baseline) on seeds: watch it, record a video, 
     {cmd} --seed 7                                       # viewer (needs a display)
     {cmd} --seed 7 --video videos/h_7.mp4                # offscreen MP4, any machine
     {cmd} --seed 7 --video videos/cmp.mp4 --compare      # classical | policy
-    {cmd} --seeds 0-99 --prefix eval_h --model archive/v5_err_decay_kept_s3.zip
+    {cmd} --seeds 0-99 --prefix eval_h --model archive/{headline}.zip
     {cmd} --seeds 0-99 --prefix analytic --controller analytic
 
 The env is rebuilt from the model's sidecar, so any archived model runs on any seed set
-(default: the headline model, archive/v5_err_decay_kept_s3.zip).
+(default: the headline model, archive/{headline}.zip).
 
 Model-file commands (each has its own --help):
 
@@ -256,8 +256,10 @@ The same command line as eval (panda_lead.cli.run); only the default controller 
 
 
 def eval_command(argv: list[str], prog: str = "eval.py", cmd: str = "uv run eval.py") -> None:
+    from ..models import DEFAULT_MODEL
+
     run_controller_cli(default_controller="policy", default_prefix="eval", argv=argv,
-                       prog=prog, description=EVAL_HELP.format(cmd=cmd))
+                       prog=prog, description=EVAL_HELP.format(cmd=cmd, headline=DEFAULT_MODEL))
 
 
 def ikpd_command(argv: list[str], prog: str = "ikpd.py", cmd: str = "uv run ikpd.py") -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 from ..controllers import make_policy
@@ -25,6 +26,7 @@ from ..models import (
     load_policy,
     pair_state,
 )
+from ..roles import role
 from ..seeds import QUICK_TEST_SEEDS
 from ..trajectory import SHAPES
 from .evaluation import evaluate
@@ -226,6 +228,10 @@ def write_card(zip_path: Path, side: dict, seed0: float | None = None) -> Path:
     origin = (f"{when}, code commit `{side.get('commit', '?')}`.{started}" if train else
               f"Adopted from `{side.get('source', '?')}` ({source}).")
     caveats = "".join(f"\n**Caveat.** {c}\n" for c in side.get("caveats", []))
+    what_for = role(zip_path.stem)  # (a long path stays whole on its line)
+    what_for = what_for and textwrap.fill(what_for, 95, break_long_words=False,
+                                          break_on_hyphens=False)
+    role_section = f"\n## Role\n\n{what_for}\n" if what_for else ""
     action = side["env_config"].get("action", "lead")
     what = {"lead": "a Cartesian lead added to the IK target of a classical IK+PD",
             "joint": "a joint-goal residual added to the IK's joint goal in a classical IK+PD",
@@ -240,7 +246,7 @@ that outputs {what} Franka Panda controller (`PandaLead-v0`).
 {origin}
 Files: `{name}.zip` (SB3 format, carrying its sidecar), `{name}.json` (the same sidecar and
 `model_sha256`, the zip's SHA-256), this card.
-{caveats}
+{role_section}{caveats}
 ## Test results (quick test seeds {seeds}, 5 s episodes, shape drawn from the seed)
 
 | set | mean error (cm) | time in 5 cm band (%) |
