@@ -209,12 +209,7 @@ def _base(args: Args):
     steps = int(round(args.duration / control_dt()))
     if args.base != "policy" and args.model is not None:
         raise UserError(f"--model is for --base policy; the {args.base} base has none")
-    late = condition_overrides(args.condition, args.base)
-    _check_clearance(args)
-    if args.clearance:
-        late = {**(late or {}), "ik": {"clearance": args.clearance}}
-    if args.follow_plan:
-        late = {**(late or {}), "follow_plan": True}
+    late = _arm_overrides(args, condition_overrides(args.condition, args.base))
     if args.base == "analytic":
         return harness.build("analytic", steps, overrides=late)
     if args.base == "feedforward":  # a zero lead on the feedforward env is that rival (a test)
@@ -235,20 +230,23 @@ def _oracle(args: Args, correction):
     from panda_lead.online import wrap
 
     ilc = ILCConfig(init="policy" if args.base == "policy" else "analytic")
-    late = {"follow_plan": True} if args.follow_plan else {}  # every replay's too
-    late |= {"ik": {"clearance": args.clearance}} if args.clearance else {}
     ctrl = harness.build("ilc", int(round(5.0 / control_dt())), model=args.model, ilc=ilc,
-                         overrides=late or None)
+                         overrides=_arm_overrides(args))  # the start's, every replay's too
     meta = {**ctrl.meta, "ilc": oracle_meta(ilc, ctrl.meta["ilc"]["start_model_sha256"],
                                             correction.meta(), args.follow_plan,
                                             args.clearance)}
     return replace(ctrl, meta=meta, init_act=wrap(ctrl.init_act, correction))
 
 
-def _check_clearance(args: Args) -> None:
-    """--clearance is a distance: refused before anything is played or written."""
+def _arm_overrides(args: Args, late: dict | None = None) -> dict | None:
+    """LATE (a condition's env settings) with what --clearance and --follow-plan add: the env
+    the base, or the oracle's start and every replay, runs on (a bad --clearance refused
+    before anything is played or written)."""
     if not (np.isfinite(args.clearance) and args.clearance >= 0):
         raise UserError(f"--clearance must be a distance >= 0 (m), got {args.clearance}")
+    arm = ({"ik": {"clearance": args.clearance}} if args.clearance else {}) | (
+        {"follow_plan": True} if args.follow_plan else {})
+    return {**(late or {}), **arm} or None
 
 
 def _check_fade(args: Args) -> None:
@@ -327,7 +325,6 @@ def play(args: Args) -> None:
     except ValueError as e:
         raise UserError(str(e)) from None
     if args.oracle:
-        _check_clearance(args)
         if args.duration != Args.duration:
             raise UserError("--oracle replays the test seeds' 5 s episodes: drop --duration")
         if args.condition != "none":

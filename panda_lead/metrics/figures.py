@@ -40,7 +40,7 @@ def colours_for(labels) -> dict[str, str]:
     # then the colours of fixed labels absent here (green, RL+Lead's, before tab20's pale
     # blue: a fifth model in the deploy figure read as a shade of the classical controller)
     spare += [c for lab, c in COLOURS.items()
-              if lab not in ("Classical", "Analytic") and c not in taken and c not in spare]
+              if lab not in ("Classical", "Analytic") and c not in taken]
     spare += [f"tab20:{i}" for i in range(1, 20, 2) if i != 15]  # tab20's light shades, no grey
     spare += [f"tab20b:{i}" for i in range(0, 20, 4)]  # then tab20b's five dark hues
     free = cycle(spare)
